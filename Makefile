@@ -1,0 +1,34 @@
+# Two commands do everything on a fresh machine:
+#   make demo   - set up .venv and run the end-to-end demo on a simulated sensor
+#   make test   - set up .venv and run the test suite
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+
+.PHONY: setup demo test lint bench clean
+
+setup: $(STAMP)
+
+$(STAMP): setup.py requirements-ros.txt requirements-dev.txt
+	$(PY) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip
+	$(BIN)/pip install -q -r requirements-ros.txt -r requirements-dev.txt
+	$(BIN)/pip install -q -e .
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/python -m accel_calib_ros.demo
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q test
+
+lint: $(STAMP)
+	$(BIN)/flake8 accel_calib_ros test bench launch
+
+bench: $(STAMP)
+	$(BIN)/python bench/run_all.py
+
+clean:
+	rm -rf $(VENV) build *.egg-info

@@ -1,0 +1,258 @@
+"""Simulated MEMS accelerometer and calibration sessions.
+
+The forward model, for true specific force ``a`` (m/s², body frame), temperature
+``theta`` (°C) and time ``t`` (s)::
+
+    s      = diag(1 + scale_tempco * (theta - temp_ref)) @ T @ a
+    raw_i  = s_i + nonlinearity_i * s_i**2 / g0
+             + bias_i + bias_tempco_i * (theta - temp_ref) + bias_drift_i * t
+             + noise, then quantised to the ADC step.
+
+``T`` is upper triangular (scale times non-orthogonality, Sun & Xu eq. 1-4).
+Each physical effect has its own field and is off when that field is zero, so
+effects can be switched on one at a time (the model-gap workflow relies on it).
+"""
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from .samples import Samples
+
+G0 = 9.80665
+"""Standard gravity, m/s²."""
+
+MPU9250_LSB = G0 / 16384.0
+"""Accelerometer ADC step at ±2 g, m/s² per count."""
+
+
+def _vec3(value):
+    return np.broadcast_to(np.asarray(value, dtype=float), (3,)).copy()
+
+
+@dataclass
+class SensorModel:
+    """True error parameters of a simulated accelerometer.
+
+    :param T: (3, 3) upper-triangular scale x non-orthogonality, raw = T @ true + bias.
+    :param bias: (3,) zero-g offset at ``temp_ref``, m/s².
+    :param noise_std: (3,) white noise per sample, m/s².
+    :param lsb: ADC quantisation step, m/s² (0 disables quantisation).
+    :param nonlinearity: (3,) quadratic scale term, fraction of reading per g (0.005 = 0.5 %).
+    :param bias_tempco: (3,) offset drift, m/s² per °C.
+    :param scale_tempco: (3,) scale drift, 1 per °C.
+    :param bias_drift: (3,) offset change with time, m/s² per s.
+    :param temp_ref: reference temperature of ``T`` and ``bias``, °C.
+    """
+
+    T: np.ndarray = field(default_factory=lambda: np.eye(3))
+    bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    noise_std: np.ndarray = field(default_factory=lambda: np.full(3, 0.02))
+    lsb: float = 0.0
+    nonlinearity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    bias_tempco: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    scale_tempco: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    bias_drift: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    temp_ref: float = 25.0
+
+    def __post_init__(self):
+        self.T = np.asarray(self.T, dtype=float).reshape(3, 3)
+        for name in ('bias', 'noise_std', 'nonlinearity', 'bias_tempco',
+                     'scale_tempco', 'bias_drift'):
+            setattr(self, name, _vec3(getattr(self, name)))
+
+    def with_effects(self, **fields):
+        """Return a copy with some fields replaced (switch effects on or off)."""
+        return replace(self, **fields)
+
+    def distort(self, true_accel, temp=None, t=None):
+        """Noise-free raw reading for true specific force.
+
+        :param true_accel: (N, 3) true specific force, m/s².
+        :param temp: (N,) temperature, °C (default ``temp_ref``).
+        :param t: (N,) time, s (default 0).
+        :returns: (N, 3) raw reading, m/s².
+        """
+        a = np.atleast_2d(np.asarray(true_accel, dtype=float))
+        n = len(a)
+        dtheta = np.zeros(n) if temp is None else np.asarray(temp, float) - self.temp_ref
+        time = np.zeros(n) if t is None else np.asarray(t, float)
+        s = a @ self.T.T
+        s = s * (1.0 + dtheta[:, None] * self.scale_tempco)
+        raw = s + self.nonlinearity * s ** 2 / G0
+        raw = raw + self.bias + dtheta[:, None] * self.bias_tempco + time[:, None] * self.bias_drift
+        return raw
+
+    def measure(self, true_accel, rng, temp=None, t=None):
+        """Noisy, quantised raw reading (as ``distort`` plus noise and ADC step)."""
+        raw = self.distort(true_accel, temp, t)
+        raw = raw + rng.standard_normal(raw.shape) * self.noise_std
+        if self.lsb > 0:
+            raw = np.round(raw / self.lsb) * self.lsb
+        return raw
+
+
+def mpu9250_like(rng, rate_hz=100.0, effects=()):
+    """Draw a sensor with MPU-9250 datasheet error magnitudes.
+
+    Scale ±3 %, cross-axis ±2 %, zero-g offset ±60 mg (x, y) / ±80 mg (z), noise
+    300 µg/√Hz over a bandwidth of rate/2, ±2 g quantisation. Effects beyond the
+    calibration model are off unless named in ``effects``: ``scale_nonlinearity``
+    (±0.5 %), ``temperature_bias`` (±1.5 mg/°C), ``temperature_scale``
+    (±0.026 %/°C), ``bias_drift`` (±0.2 mg/min). ``nonorthogonality`` is always
+    on (it is part of T); pass ``orthogonal=True`` semantics by zeroing it yourself.
+
+    :returns: SensorModel.
+    """
+    def pm(scale):
+        return rng.uniform(-1, 1, 3) * scale
+
+    def signed(low, high):
+        return rng.uniform(low, high, 3) * rng.choice([-1.0, 1.0], 3)
+
+    T = np.diag(1.0 + pm(0.03))
+    T[np.triu_indices(3, 1)] = pm(0.02)
+    model = SensorModel(
+        T=T,
+        bias=np.array([0.06, 0.06, 0.08]) * G0 * rng.uniform(-1, 1, 3),
+        noise_std=np.full(3, 300e-6 * G0 * np.sqrt(rate_hz / 2.0)),
+        lsb=MPU9250_LSB)
+    magnitudes = {
+        'scale_nonlinearity': ('nonlinearity', signed(0.002, 0.005)),
+        'temperature_bias': ('bias_tempco', signed(0.5e-3, 1.5e-3) * G0),
+        'temperature_scale': ('scale_tempco', signed(0.1e-4, 2.6e-4)),
+        'bias_drift': ('bias_drift', signed(0.5e-3, 2e-3) * G0 / 60.0),
+    }
+    for name in effects:
+        if name == 'nonorthogonality':
+            continue
+        attr, value = magnitudes[name]
+        setattr(model, attr, value)
+    return model
+
+
+def random_directions(n, rng):
+    """``n`` unit vectors uniformly distributed on the sphere, shape (n, 3)."""
+    v = rng.standard_normal((n, 3))
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def face_directions():
+    """The six-face session: ±x, ±y, ±z up, shape (6, 3)."""
+    return np.vstack([np.eye(3), -np.eye(3)])[[0, 3, 1, 4, 2, 5]]
+
+
+def sun_xu_directions(n, rng, amplitude_deg=(120.0, 120.0, 80.0)):
+    """Gravity directions of Sun & Xu's simulation (Euler angles x U(-1, 1)).
+
+    Pitch, roll and heading amplitudes 120°, 120°, 80°, each multiplied by a uniform
+    random number; gravity (0, 0, 1) in the navigation frame rotated into the body.
+
+    :returns: (n, 3) unit vectors.
+    """
+    angles = rng.uniform(-1, 1, (n, 3)) * np.asarray(amplitude_deg)
+    rot = Rotation.from_euler('yxz', angles, degrees=True)
+    return rot.inv().apply([0.0, 0.0, 1.0])
+
+
+def _rotation_to(direction):
+    """Rotation R (body to world) with R^T e_z = direction, for each row."""
+    d = np.atleast_2d(direction)
+    rots, _ = zip(*[Rotation.align_vectors([[0.0, 0.0, 1.0]], [row]) for row in d])
+    return Rotation.concatenate(rots)
+
+
+@dataclass
+class Session:
+    """A simulated calibration session: samples plus the truth behind them.
+
+    ``pose`` is the index of the held pose for each sample, -1 while moving.
+    """
+
+    samples: Samples
+    true_accel: np.ndarray
+    pose: np.ndarray
+    directions: np.ndarray
+    sensor: SensorModel
+    gravity: float
+
+
+def simulate_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=100.0,
+                     gravity=G0, temperature=25.0, motion_accel=1.5, lead_s=None):
+    """Simulate someone turning the sensor through a sequence of held poses.
+
+    :param sensor: SensorModel that produces the raw readings.
+    :param directions: (P, 3) unit gravity directions in the body frame, one per pose.
+    :param rng: numpy Generator.
+    :param hold_s: seconds each pose is held still (scalar or (P,) array).
+    :param move_s: seconds each move between poses takes.
+    :param rate_hz: sample rate, Hz.
+    :param gravity: local gravity magnitude, m/s².
+    :param temperature: °C; a constant, a (start, end) pair for a linear ramp over
+        the session, or a callable of time in seconds.
+    :param motion_accel: peak hand acceleration during a move, m/s².
+    :param lead_s: still time before the first pose is reached (default ``hold_s``).
+    :returns: Session.
+    """
+    directions = np.asarray(directions, float).reshape(-1, 3)
+    directions = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    n_pose = len(directions)
+    holds = np.broadcast_to(np.asarray(hold_s, float), (n_pose,))
+    dt = 1.0 / rate_hz
+    rots = _rotation_to(directions)
+
+    segments_t, segments_rot, segments_pose, segments_motion = [], [], [], []
+    t0 = 0.0
+    for k in range(n_pose):
+        if k > 0:
+            n_move = max(int(round(move_s * rate_hz)), 2)
+            s = (np.arange(n_move) + 1) / (n_move + 1)
+            pair = Rotation.concatenate([rots[k - 1], rots[k]])
+            segments_rot.append(Slerp([0.0, 1.0], pair)(s))
+            segments_t.append(t0 + np.arange(n_move) * dt)
+            segments_pose.append(np.full(n_move, -1))
+            axis = rng.standard_normal(3)
+            bump = np.sin(np.pi * s)[:, None] * motion_accel * axis / np.linalg.norm(axis)
+            segments_motion.append(bump)
+            t0 += n_move * dt
+        n_hold = max(int(round(holds[k] * rate_hz)), 1)
+        segments_rot.append(Rotation.concatenate([rots[k]] * n_hold))
+        segments_t.append(t0 + np.arange(n_hold) * dt)
+        segments_pose.append(np.full(n_hold, k))
+        segments_motion.append(np.zeros((n_hold, 3)))
+        t0 += n_hold * dt
+
+    t = np.concatenate(segments_t)
+    rot = Rotation.concatenate(segments_rot)
+    pose = np.concatenate(segments_pose)
+    motion_world = np.concatenate(segments_motion)
+    true_accel = rot.inv().apply(np.array([0.0, 0.0, gravity]) + motion_world)
+
+    rotvec = (rot[1:] * rot[:-1].inv()).as_rotvec() / dt
+    gyro_world = np.vstack([rotvec, rotvec[-1:]])
+    gyro = rot.inv().apply(gyro_world) + rng.standard_normal((len(t), 3)) * 0.002
+
+    if callable(temperature):
+        temp = np.asarray(temperature(t), float) * np.ones(len(t))
+    elif np.ndim(temperature) == 0:
+        temp = np.full(len(t), float(temperature))
+    else:
+        start, end = temperature
+        temp = start + (end - start) * (t - t[0]) / max(t[-1] - t[0], dt)
+    raw = sensor.measure(true_accel, rng, temp, t)
+    return Session(Samples(t, raw, temp, gyro), true_accel, pose, directions, sensor, gravity)
+
+
+def simulate_window_means(sensor, directions, n_samples, rng, gravity=G0, temp=None, t=None):
+    """Window means of static poses directly, without simulating every sample.
+
+    :param directions: (N, 3) unit gravity directions.
+    :param n_samples: (N,) samples averaged in each window.
+    :param temp: (N,) window temperatures, °C; ``t``: (N,) window mid times, s.
+    :returns: (N, 3) mean raw readings, m/s² (noise std / sqrt(n); no quantisation).
+    """
+    directions = np.asarray(directions, float).reshape(-1, 3)
+    raw = sensor.distort(gravity * directions, temp, t)
+    n = np.broadcast_to(np.asarray(n_samples, float), (len(directions),))
+    return raw + rng.standard_normal(raw.shape) * sensor.noise_std / np.sqrt(n)[:, None]

@@ -1,0 +1,280 @@
+"""Static-window detection: find the stretches where the sensor was held still.
+
+A sample is still when the moving standard deviation of the acceleration (and of
+the angular rate, when recorded) over ``window_s`` stays below ``threshold_factor``
+times the recording's own noise floor. The floor is a low quantile of that moving
+standard deviation, so no threshold has to be tuned per sensor. A run of still
+samples longer than ``min_duration_s`` becomes a window after ``trim_s`` is cut
+from each end (the hand is still settling there).
+"""
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import CalibrationError
+
+DEFAULTS = dict(window_s=0.5, min_duration_s=1.0, threshold_factor=3.0, trim_s=0.2,
+                floor_quantile=0.05)
+
+
+@dataclass
+class StaticWindows:
+    """Static windows of a recording, one row per window.
+
+    :param start: (W,) first sample index (inclusive).
+    :param stop: (W,) last sample index (exclusive).
+    :param mean: (W, 3) mean raw acceleration, m/s².
+    :param scatter: (W, 3) per-axis sample standard deviation, m/s².
+    :param count: (W,) samples in the window.
+    :param t_mid: (W,) mid time, s.
+    :param temp: (W,) mean temperature, °C (NaN when not recorded).
+    :param noise_floor: per-sample noise level the thresholds were set from, m/s².
+    """
+
+    start: np.ndarray
+    stop: np.ndarray
+    mean: np.ndarray
+    scatter: np.ndarray
+    count: np.ndarray
+    t_mid: np.ndarray
+    temp: np.ndarray
+    noise_floor: float = float('nan')
+
+    def __len__(self):
+        return len(self.count)
+
+    @property
+    def noise_std(self):
+        """Pooled within-window per-sample noise, m/s² per axis (3,)."""
+        dof = np.maximum(self.count - 1, 0)
+        return np.sqrt(np.sum(dof[:, None] * self.scatter ** 2, axis=0) / max(dof.sum(), 1))
+
+    def select(self, index):
+        """Windows picked by a boolean mask or index array."""
+        return StaticWindows(self.start[index], self.stop[index], self.mean[index],
+                             self.scatter[index], self.count[index], self.t_mid[index],
+                             self.temp[index], self.noise_floor)
+
+    def weights(self, max_weight_s=None, rate_hz=None):
+        """Observation weights: samples per window, capped at ``max_weight_s`` of data.
+
+        Averaging beyond a few seconds stops helping on a real MEMS sensor (bias
+        instability, flicker noise) while model errors do not average out, so very
+        long windows are not allowed to dominate the fit.
+        """
+        w = self.count.astype(float)
+        if max_weight_s and rate_hz:
+            w = np.minimum(w, max_weight_s * rate_hz)
+        return w
+
+
+def _moving_std(x, n):
+    """Centred moving standard deviation over ``n`` samples, shape like ``x`` (N, k)."""
+    n = max(int(n), 2)
+    pad = np.pad(x - x.mean(axis=0), ((n // 2, n - n // 2 - 1), (0, 0)), mode='edge')
+    c1 = np.cumsum(np.vstack([np.zeros((1, x.shape[1])), pad]), axis=0)
+    c2 = np.cumsum(np.vstack([np.zeros((1, x.shape[1])), pad ** 2]), axis=0)
+    s1 = c1[n:] - c1[:-n]
+    s2 = c2[n:] - c2[:-n]
+    var = np.maximum(s2 / n - (s1 / n) ** 2, 0.0)
+    return np.sqrt(var.sum(axis=1) / x.shape[1])
+
+
+def _runs(mask):
+    """(start, stop) index pairs of the True runs of a boolean array."""
+    edges = np.diff(np.r_[0, mask.astype(np.int8), 0])
+    return np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+
+
+def still_mask(samples, window_s=DEFAULTS['window_s'],
+               threshold_factor=DEFAULTS['threshold_factor'],
+               floor_quantile=DEFAULTS['floor_quantile']):
+    """Boolean (N,) mask of still samples and the accelerometer noise floor (m/s²)."""
+    rate = samples.rate_hz
+    if not np.isfinite(rate):
+        raise CalibrationError('cannot find static windows in fewer than two samples')
+    n = max(int(round(window_s * rate)), 3)
+    acc_std = _moving_std(samples.accel, n)
+    g = np.median(np.linalg.norm(samples.accel, axis=1))
+    floor = max(float(np.quantile(acc_std, floor_quantile)), 1e-5 * g)
+    mask = acc_std <= threshold_factor * floor
+    if samples.gyro is not None and np.all(np.isfinite(samples.gyro)):
+        gyr_std = _moving_std(samples.gyro, n)
+        gyr_floor = max(float(np.quantile(gyr_std, floor_quantile)), 1e-6)
+        mask &= gyr_std <= threshold_factor * gyr_floor
+    return mask, floor
+
+
+def detect_static_windows(samples, window_s=DEFAULTS['window_s'],
+                          min_duration_s=DEFAULTS['min_duration_s'],
+                          threshold_factor=DEFAULTS['threshold_factor'],
+                          trim_s=DEFAULTS['trim_s'],
+                          floor_quantile=DEFAULTS['floor_quantile']):
+    """Find the static windows of a recording.
+
+    :param samples: Samples (validated).
+    :param window_s: moving standard deviation window, s.
+    :param min_duration_s: shortest window kept (after trimming), s.
+    :param threshold_factor: still when the moving std < factor x noise floor.
+    :param trim_s: cut from each end of a still run, s.
+    :param floor_quantile: quantile of the moving std taken as the noise floor.
+    :returns: StaticWindows (possibly empty).
+    """
+    mask, floor = still_mask(samples, window_s, threshold_factor, floor_quantile)
+    rate = samples.rate_hz
+    trim = int(round(trim_s * rate))
+    min_len = max(int(round(min_duration_s * rate)), 2)
+    starts, stops = _runs(mask)
+    starts, stops = starts + trim, stops - trim
+    keep = stops - starts >= min_len
+    starts, stops = starts[keep], stops[keep]
+    return windows_from_ranges(samples, starts, stops, floor)
+
+
+def windows_from_ranges(samples, starts, stops, noise_floor=float('nan')):
+    """Summarise given sample ranges [start, stop) as StaticWindows."""
+    starts = np.asarray(starts, dtype=int)
+    stops = np.asarray(stops, dtype=int)
+    count = stops - starts
+    csum = np.vstack([np.zeros((1, 3)), np.cumsum(samples.accel, axis=0)])
+    mean = (csum[stops] - csum[starts]) / np.maximum(count, 1)[:, None]
+    scatter = np.array([samples.accel[a:b].std(axis=0, ddof=1) if b - a > 1 else np.zeros(3)
+                        for a, b in zip(starts, stops)]).reshape(-1, 3)
+    t_mid = 0.5 * (samples.t[starts] + samples.t[np.maximum(stops - 1, starts)]) \
+        if len(starts) else np.zeros(0)
+    if samples.temp is None:
+        temp = np.full(len(starts), np.nan)
+    else:
+        ct = np.r_[0.0, np.cumsum(samples.temp)]
+        temp = (ct[stops] - ct[starts]) / np.maximum(count, 1)
+    return StaticWindows(starts, stops, mean, scatter, count, t_mid, temp, noise_floor)
+
+
+def distinct_directions(vectors, min_angle_deg=10.0):
+    """Number of directions among ``vectors`` (N, 3) at least ``min_angle_deg`` apart."""
+    u = np.asarray(vectors, float)
+    u = u / np.linalg.norm(u, axis=1, keepdims=True)
+    cos_min = np.cos(np.radians(min_angle_deg))
+    chosen = []
+    for v in u:
+        if all(v @ c < cos_min for c in chosen):
+            chosen.append(v)
+    return len(chosen)
+
+
+class OnlineStaticDetector:
+    """Streaming static-window detector with bounded memory.
+
+    Feed samples one at a time; a window is emitted when the sensor starts to move
+    after having been still long enough that ``min_duration_s`` of samples remain
+    once both ends are trimmed (a pose held 2 s gives about 1.4 s of window). Memory is O(window_s x
+    rate): a ring of recent samples for the moving standard deviation plus running
+    sums for the window being collected. The noise floor is learned from the data:
+    the smallest moving standard deviation seen in the last ``floor_memory_s``, but
+    never below ``min_floor``.
+
+    :param rate_hz: nominal sample rate, Hz.
+    :param min_floor: smallest noise floor believed, m/s² (ADC step and the like).
+    """
+
+    def __init__(self, rate_hz, window_s=0.25, min_duration_s=1.0, threshold_factor=3.0,
+                 trim_s=0.2, floor_memory_s=120.0, min_floor=0.002):
+        self.n = max(int(round(window_s * rate_hz)), 3)
+        self.min_len = int(round(min_duration_s * rate_hz))
+        self.trim = int(round(trim_s * rate_hz))
+        self.factor = threshold_factor
+        self.min_floor = min_floor
+        self.floor_block = max(int(round(floor_memory_s * rate_hz / 8)), 1)
+        self._floors = deque([np.inf], maxlen=8)
+        self._block_min, self._block_count = np.inf, 0
+        self._recent = deque(maxlen=self.n)
+        self._sum = np.zeros(3)
+        self._sum2 = np.zeros(3)
+        self._tail = deque(maxlen=self.trim + self.n)
+        self._reset_run()
+
+    def _reset_run(self):
+        self._run = []          # per-sample data of the current still run beyond the trim
+        self._run_len = 0
+        self._acc = None
+
+    @property
+    def noise_floor(self):
+        """Current noise floor estimate, m/s²."""
+        return max(min(min(self._floors), self._block_min), self.min_floor)
+
+    def _std(self):
+        m = len(self._recent)
+        var = np.maximum(self._sum2 / m - (self._sum / m) ** 2, 0.0)
+        return float(np.sqrt(var.mean()))
+
+    def update(self, t, accel, temp=float('nan')):
+        """Add one sample (t s, accel (3,) m/s², temp °C); return a finished window or None.
+
+        A finished window is a dict with keys mean (3,), scatter (3,), count,
+        t_mid, temp, t_start, t_stop.
+        """
+        a = np.asarray(accel, dtype=float)
+        if len(self._recent) == self.n:
+            old = self._recent[0]
+            self._sum -= old
+            self._sum2 -= old ** 2
+        self._recent.append(a)
+        self._sum += a
+        self._sum2 += a ** 2
+        if len(self._recent) < self.n:
+            return None
+        std = self._std()
+        self._block_min = min(self._block_min, std)
+        self._block_count += 1
+        if self._block_count >= self.floor_block:
+            self._floors.append(self._block_min)
+            self._block_min, self._block_count = np.inf, 0
+        still = std <= self.factor * self.noise_floor
+        # The moving std is centred n/2 samples back; delay decisions by that much.
+        self._tail.append((t, a, temp))
+        if still:
+            if len(self._tail) > self.trim + self.n // 2:
+                self._accumulate(self._tail.popleft())
+            return None
+        window = self._finish()
+        self._tail.clear()
+        return window
+
+    def flush(self):
+        """Finish the window being collected now (the sensor may still be still)."""
+        window = self._finish()
+        self._tail.clear()
+        return window
+
+    def _accumulate(self, sample):
+        t, a, temp = sample
+        if self._acc is None:
+            self._acc = dict(n=0, mean=np.zeros(3), m2=np.zeros(3), t0=t, t1=t,
+                             temp_sum=0.0, temp_n=0)
+        acc = self._acc
+        acc['n'] += 1
+        delta = a - acc['mean']
+        acc['mean'] += delta / acc['n']
+        acc['m2'] += delta * (a - acc['mean'])
+        acc['t1'] = t
+        if np.isfinite(temp):
+            acc['temp_sum'] += temp
+            acc['temp_n'] += 1
+
+    def _finish(self):
+        acc = self._acc
+        self._reset_run()
+        if acc is None:
+            return None
+        # The trailing ``trim`` samples were never accumulated (still in the tail),
+        # the leading ones were skipped by the delay: both ends are trimmed.
+        if acc['n'] < self.min_len:
+            return None
+        return dict(mean=acc['mean'].copy(),
+                    scatter=np.sqrt(acc['m2'] / max(acc['n'] - 1, 1)),
+                    count=acc['n'], t_start=acc['t0'], t_stop=acc['t1'],
+                    t_mid=0.5 * (acc['t0'] + acc['t1']),
+                    temp=acc['temp_sum'] / acc['temp_n'] if acc['temp_n'] else float('nan'))
