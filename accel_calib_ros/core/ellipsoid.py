@@ -63,4 +63,31 @@ def fit_ellipsoid(readings, weights=None, radius=1.0):
         raise CalibrationError(f'ellipsoid fit is degenerate: {err}') from None
     T = np.linalg.inv(R)
     T[np.tril_indices(3, -1)] = 0.0
+    axes = np.linalg.svd(T, compute_uv=False)
+    if axes[-1] < MIN_AXIS_RATIO * axes[0]:
+        raise CalibrationError(
+            f'the fitted ellipsoid is flat (axis ratio {axes[-1] / axes[0]:.3f}): the '
+            'orientations do not span three dimensions; tilt the sensor out of the plane')
+    check_coverage((y - bias) @ R.T / radius, w)
     return T, bias
+
+
+MIN_AXIS_RATIO = 0.2
+"""Smallest accepted ratio of the ellipsoid's axes (a real triad's sensitivities agree)."""
+
+MIN_COVERAGE = 0.01
+"""Smallest eigenvalue of the weighted direction scatter E[u uᵀ] accepted (sphere: 1/3)."""
+
+
+def check_coverage(directions, weights=None):
+    """Raise CalibrationError unless unit vectors (N, 3) reach out along all three axes."""
+    u = np.asarray(directions, float)
+    u = u / np.linalg.norm(u, axis=1, keepdims=True)
+    w = np.ones(len(u)) if weights is None else np.asarray(weights, float)
+    scatter = (u * w[:, None]).T @ u / np.sum(w)
+    coverage = np.linalg.eigvalsh(scatter)[0]
+    if coverage < MIN_COVERAGE:
+        raise CalibrationError(
+            f'the orientations do not cover all three axes (coverage {coverage:.3f}, '
+            f'needs {MIN_COVERAGE}); tilt the sensor out of the plane it was turned in')
+    return coverage

@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from .ellipsoid import fit_ellipsoid, UPPER
+from .ellipsoid import check_coverage, fit_ellipsoid, UPPER
 from .errors import CalibrationError
 
 PARAMETER_NAMES = ('T_xx', 'T_xy', 'T_xz', 'T_yy', 'T_yz', 'T_zz', 'b_x', 'b_y', 'b_z')
@@ -222,6 +222,7 @@ def fit_ml(readings, weights=None, radius=1.0, start=None, max_iter=100, tol=1e-
     if np.any(np.diag(T) <= 0) or not np.all(np.isfinite(p)):
         raise CalibrationError('ML iteration diverged to a non-physical T; '
                                'the observations do not constrain the model')
+    check_coverage(u, w)
     S, _, _ = problem.schur(p, u)
     dof = n - 9
     sigma2 = 2.0 * f / dof

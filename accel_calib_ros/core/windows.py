@@ -1,7 +1,7 @@
 """Static-window detection: find the stretches where the sensor was held still.
 
-A sample is still when the moving standard deviation of the acceleration (and of
-the angular rate, when recorded) over ``window_s`` stays below ``threshold_factor``
+A sample is still when the moving standard deviation of the acceleration (and,
+if asked, of the angular rate) over ``window_s`` stays below ``threshold_factor``
 times the recording's own noise floor. The floor is a low quantile of that moving
 standard deviation, so no threshold has to be tuned per sensor. A run of still
 samples longer than ``min_duration_s`` becomes a window after ``trim_s`` is cut
@@ -90,8 +90,13 @@ def _runs(mask):
 
 def still_mask(samples, window_s=DEFAULTS['window_s'],
                threshold_factor=DEFAULTS['threshold_factor'],
-               floor_quantile=DEFAULTS['floor_quantile']):
-    """Boolean (N,) mask of still samples and the accelerometer noise floor (m/s²)."""
+               floor_quantile=DEFAULTS['floor_quantile'], use_gyro=False):
+    """Boolean (N,) mask of still samples and the accelerometer noise floor (m/s²).
+
+    The gyro is off by default: a pose held by hand shakes the gyro far above the
+    floor of a table-still stretch while the specific force stays steady, and a
+    steady specific force is all the calibration needs.
+    """
     rate = samples.rate_hz
     if not np.isfinite(rate):
         raise CalibrationError('cannot find static windows in fewer than two samples')
@@ -100,7 +105,7 @@ def still_mask(samples, window_s=DEFAULTS['window_s'],
     g = np.median(np.linalg.norm(samples.accel, axis=1))
     floor = max(float(np.quantile(acc_std, floor_quantile)), 1e-5 * g)
     mask = acc_std <= threshold_factor * floor
-    if samples.gyro is not None and np.all(np.isfinite(samples.gyro)):
+    if use_gyro and samples.gyro is not None and np.all(np.isfinite(samples.gyro)):
         gyr_std = _moving_std(samples.gyro, n)
         gyr_floor = max(float(np.quantile(gyr_std, floor_quantile)), 1e-6)
         mask &= gyr_std <= threshold_factor * gyr_floor
