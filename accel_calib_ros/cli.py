@@ -1,4 +1,5 @@
-"""``accel-calib``: the calibration science offline, on CSV or rosbag2 recordings.
+"""
+``accel-calib``: the calibration science offline, on CSV or rosbag2 recordings.
 
 Exit status: 0 success, 2 bad usage or bad input, 1 a calibration that cannot be
 solved. Human summary on stdout by default, exactly one JSON object with --json;
@@ -12,7 +13,7 @@ import sys
 
 import numpy as np
 
-from .core.calibration import calibrate, Calibration, gravity_residuals, METHODS
+from .core.calibration import calibrate, Calibration, METHODS
 from .core.errors import CalibrationError, InputError
 from .core.samples import Samples
 from .core.windows import DEFAULTS, detect_static_windows
@@ -56,7 +57,7 @@ def _positive(text):
 
 
 def build_parser():
-    """The argparse parser of ``accel-calib``."""
+    """Build the argparse parser of ``accel-calib``."""
     parser = _Parser(prog='accel-calib', description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest='command', required=True, parser_class=_Parser)
 
@@ -133,7 +134,7 @@ def _load(args):
 
 
 def _observations(samples, args):
-    """Readings, weights, temperatures and noise for the chosen mode."""
+    """Return readings, weights, temperatures and noise for the chosen mode."""
     if getattr(args, 'mode', 'windows') == 'samples':
         return samples.accel, None, samples.temp, None, len(samples)
     windows = detect_static_windows(samples, min_duration_s=args.min_window_s,
@@ -147,12 +148,12 @@ def _observations(samples, args):
 
 
 def _fit_summary(cal, extra):
-    d = dict(method=cal.method, T=cal.T.tolist(), bias=cal.bias.tolist(),
-             residual_rms=cal.residual_rms, iterations=cal.iterations,
-             observations=cal.observations, converged=cal.converged, seconds=cal.seconds,
-             gravity=cal.gravity, scale=cal.scale.tolist(),
-             nonorthogonality_deg=cal.nonorthogonality_deg.tolist(),
-             noise_std=[None if not np.isfinite(v) else float(v) for v in cal.noise_std])
+    d = {'method': cal.method, 'T': cal.T.tolist(), 'bias': cal.bias.tolist(),
+         'residual_rms': cal.residual_rms, 'iterations': cal.iterations,
+         'observations': cal.observations, 'converged': cal.converged, 'seconds': cal.seconds,
+         'gravity': cal.gravity, 'scale': cal.scale.tolist(),
+         'nonorthogonality_deg': cal.nonorthogonality_deg.tolist(),
+         'noise_std': [None if not np.isfinite(v) else float(v) for v in cal.noise_std]}
     if cal.covariance is not None:
         d['stddev'] = np.sqrt(np.maximum(np.diag(cal.covariance), 0)).tolist()
     if cal.thermal is not None:
@@ -168,8 +169,8 @@ def cmd_fit(args, out):
                     temps=temps, thermal=args.thermal, band_width_c=args.band_width,
                     noise_std=noise, source=os.path.basename(args.data))
     raw_resid = np.sqrt(np.mean((np.linalg.norm(readings, axis=1) - args.gravity) ** 2))
-    extra = dict(mode=args.mode, samples=len(samples), residual_rms_uncalibrated=raw_resid,
-                 output=args.output)
+    extra = {'mode': args.mode, 'samples': len(samples), 'residual_rms_uncalibrated': raw_resid,
+             'output': args.output}
     if args.output:
         cal.save(args.output)
     for problem in cal.physical_problems():
@@ -208,9 +209,9 @@ def cmd_apply(args, out):
     write_samples_csv(args.output, Samples(samples.t, corrected, samples.temp, samples.gyro))
     norm_before = np.linalg.norm(samples.accel, axis=1)
     norm_after = np.linalg.norm(corrected, axis=1)
-    summary = dict(output=args.output, samples=len(samples), calibration=args.calibration,
-                   mean_norm_before=float(norm_before.mean()),
-                   mean_norm_after=float(norm_after.mean()))
+    summary = {'output': args.output, 'samples': len(samples), 'calibration': args.calibration,
+               'mean_norm_before': float(norm_before.mean()),
+               'mean_norm_after': float(norm_after.mean())}
     if args.json:
         out(summary)
     else:
@@ -260,8 +261,8 @@ def cmd_simulate(args, out):
         import yaml
         from .io.atomic import atomic_write_text
         atomic_write_text(args.truth, yaml.safe_dump(truth, sort_keys=False))
-    summary = dict(output=args.output, samples=len(session.samples), poses=len(directions),
-                   seconds=float(session.samples.t[-1]), truth=truth)
+    summary = {'output': args.output, 'samples': len(session.samples), 'poses': len(directions),
+               'seconds': float(session.samples.t[-1]), 'truth': truth}
     if args.json:
         out(summary)
     else:
@@ -271,14 +272,14 @@ def cmd_simulate(args, out):
 
 
 def sensor_to_dict(sensor, gravity):
-    """True parameters of a simulated sensor as a plain mapping (m/s², °C, s)."""
-    return dict(T=sensor.T.tolist(), bias_m_s2=sensor.bias.tolist(),
-                noise_std_m_s2=sensor.noise_std.tolist(), lsb_m_s2=float(sensor.lsb),
-                nonlinearity=sensor.nonlinearity.tolist(),
-                bias_tempco_m_s2_per_c=sensor.bias_tempco.tolist(),
-                scale_tempco_per_c=sensor.scale_tempco.tolist(),
-                bias_drift_m_s2_per_s=sensor.bias_drift.tolist(),
-                temp_ref_c=float(sensor.temp_ref), gravity_m_s2=float(gravity))
+    """Return the true parameters of a simulated sensor as a mapping (m/s², °C, s)."""
+    return {'T': sensor.T.tolist(), 'bias_m_s2': sensor.bias.tolist(),
+            'noise_std_m_s2': sensor.noise_std.tolist(), 'lsb_m_s2': float(sensor.lsb),
+            'nonlinearity': sensor.nonlinearity.tolist(),
+            'bias_tempco_m_s2_per_c': sensor.bias_tempco.tolist(),
+            'scale_tempco_per_c': sensor.scale_tempco.tolist(),
+            'bias_drift_m_s2_per_s': sensor.bias_drift.tolist(),
+            'temp_ref_c': float(sensor.temp_ref), 'gravity_m_s2': float(gravity)}
 
 
 def cmd_diagnose(args, out):
@@ -306,7 +307,7 @@ def cmd_simulate_device(args, out):
     return args.run_device(args)
 
 
-COMMANDS = dict(fit=cmd_fit, apply=cmd_apply, simulate=cmd_simulate, diagnose=cmd_diagnose)
+COMMANDS = {'fit': cmd_fit, 'apply': cmd_apply, 'simulate': cmd_simulate, 'diagnose': cmd_diagnose}
 COMMANDS['simulate-device'] = cmd_simulate_device
 
 

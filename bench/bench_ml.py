@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Benchmark of the calibration core: accuracy against the papers, the CRB, peers; speed.
+"""
+Benchmark of the calibration core: accuracy against the papers, the CRB, peers; speed.
 
 Prints figures, asserts nothing. Sections (pick with --only NAME):
   paper    Sun & Xu's simulation: LS (ellipsoid) vs ML, e_T/e_b (eq. 20), RMS vs CRB
@@ -16,29 +17,28 @@ import os
 import sys
 import time
 
+from accel_calib_ros.core.calibration import calibrate, gravity_residuals
+from accel_calib_ros.core.ellipsoid import fit_ellipsoid
+from accel_calib_ros.core.gn import fit_gn
+from accel_calib_ros.core.ml import (
+    cramer_rao_bound, fit_ml, fit_ml_bias_corrected, pack, unpack)
+from accel_calib_ros.core.simulate import (
+    face_directions, random_directions, sun_xu_directions)
+from accel_calib_ros.core.windows import detect_static_windows
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), '..', 'test'))
-
-from accel_calib_ros.core.calibration import calibrate, gravity_residuals  # noqa: E402
-from accel_calib_ros.core.ellipsoid import fit_ellipsoid  # noqa: E402
-from accel_calib_ros.core.gn import fit_gn  # noqa: E402
-from accel_calib_ros.core.ml import (  # noqa: E402
-    cramer_rao_bound, fit_ml, fit_ml_bias_corrected, pack, unpack)
-from accel_calib_ros.core.simulate import (  # noqa: E402
-    face_directions, random_directions, sun_xu_directions)
-from accel_calib_ros.core.windows import detect_static_windows  # noqa: E402
-import peer_data  # noqa: E402
+import peer_data  # noqa: E402, I100
 
 T_PAPER = np.array([[1.15, 0.0602, -0.0401], [0, 1.0985, 0.0575], [0, 0, 1.0978]])
 B_PAPER = np.array([0.1, 0.15, 0.2])
-TABLE1 = dict(
-    LS=(np.array([[1.0673, 0.0668, -0.0305], [0, 1.1283, 0.0410], [0, 0, 1.1990]]),
-        np.array([0.0869, 0.1562, 0.1790])),
-    ML=(np.array([[1.1577, 0.0675, -0.0414], [0, 1.0978, 0.0512], [0, 0, 1.1286]]),
-        np.array([0.0911, 0.1558, 0.1921])))
+TABLE1 = {
+    'LS': (np.array([[1.0673, 0.0668, -0.0305], [0, 1.1283, 0.0410], [0, 0, 1.1990]]),
+           np.array([0.0869, 0.1562, 0.1790])),
+    'ML': (np.array([[1.1577, 0.0675, -0.0414], [0, 1.0978, 0.0512], [0, 0, 1.1286]]),
+           np.array([0.0911, 0.1558, 0.1921]))}
 
 
 def e_metrics(T, b):
@@ -71,7 +71,7 @@ def bench_paper(trials):
             e[name].append(e_metrics(T, b))
         crb_trace.append(np.trace(cramer_rao_bound(T_PAPER, B_PAPER, u, 0.1)))
         if k == 0:
-            first = dict(LS=(T_ls, b_ls), ML=(ml.T, ml.bias))
+            first = {'LS': (T_ls, b_ls), 'ML': (ml.T, ml.bias)}
     crb_rms = np.sqrt(np.mean(crb_trace))
     print('Table 1 beside ours (first trial of the seeded run):')
     with np.printoptions(precision=4, suppress=True):
@@ -143,7 +143,7 @@ def _ml_problem(n, rng):
 
 
 def _scipy_sparse(y, start):
-    """The same ML problem for scipy.optimize.least_squares (trf, sparse Jacobian)."""
+    """Solve the same ML problem with scipy.optimize.least_squares (trf, sparse)."""
     n = len(y)
     T0, b0 = start
     u0 = np.linalg.solve(T0, (y - b0).T).T
@@ -297,8 +297,8 @@ def bench_real(_trials):
                       f'samples); ours {per_sample:.4f} m/s² over all window samples')
 
 
-SECTIONS = dict(paper=bench_paper, bias=bench_bias, gn=bench_gn, speed=bench_speed,
-                real=bench_real)
+SECTIONS = {'paper': bench_paper, 'bias': bench_bias, 'gn': bench_gn, 'speed': bench_speed,
+            'real': bench_real}
 
 
 def main():

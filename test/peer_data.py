@@ -1,4 +1,5 @@
-"""Readers for the public peer recordings in ../shared/data (tests and benchmarks only).
+"""
+Readers for the public peer recordings in ../shared/data (tests and benchmarks only).
 
 Each returns Samples in the recording's own units plus what is needed to compare
 with the peer's published result. The product reads only the spec's CSV and bags;
@@ -8,9 +9,8 @@ with the peer's published result. The product reads only the spec's CSV and bags
 import json
 import os
 
-import numpy as np
-
 from accel_calib_ros.core.samples import Samples
+import numpy as np
 
 DATA = os.environ.get('ACCEL_CALIB_DATA',
                       os.path.join(os.path.dirname(__file__), '..', '..', 'shared', 'data'))
@@ -18,13 +18,13 @@ DATA = os.environ.get('ACCEL_CALIB_DATA',
 IMU_TK_GRAVITY = 9.81744
 """Gravity used by imu_tk's test application, m/s²."""
 
-IMU_TK_REFERENCE = dict(inverse_scale=np.array([414.459, 412.010, 414.649]),
-                        bias=np.array([33124.2, 33275.2, 32364.4]), residual_rms=0.0080)
+IMU_TK_REFERENCE = {'inverse_scale': np.array([414.459, 412.010, 414.649]),
+                    'bias': np.array([33124.2, 33275.2, 32364.4]), 'residual_rms': 0.0080}
 """imu_tk's own result on xsens_acc.mat: counts/(m/s²), counts, m/s²."""
 
 
 def available(name):
-    """True when the peer data folder ``name`` is present."""
+    """Tell whether the peer data folder ``name`` is present."""
     return os.path.isdir(os.path.join(DATA, name))
 
 
@@ -44,7 +44,7 @@ def mpu6050():
 
 
 def imucal_ferraris():
-    """imucal's Ferraris session (m/s², 102.4 Hz) and its static section list."""
+    """Read imucal's Ferraris session (m/s², 102.4 Hz) and its static section list."""
     path = os.path.join(DATA, 'imucal', 'example_ferraris_session.csv')
     table = np.genfromtxt(path, delimiter=',', names=True)
     t = table['n_samples'] / 102.4

@@ -1,8 +1,5 @@
 """Properties of the fits: ML (Sun & Xu), ellipsoid LS, Gauss-Newton (Gui Yi)."""
 
-import numpy as np
-import pytest
-
 from accel_calib_ros.core.ellipsoid import fit_ellipsoid
 from accel_calib_ros.core.errors import CalibrationError
 from accel_calib_ros.core.gn import fit_gn
@@ -10,6 +7,8 @@ from accel_calib_ros.core.ml import (
     _Problem, cramer_rao_bound, fit_ml, fit_ml_bias_corrected, pack, unpack)
 from accel_calib_ros.core.simulate import face_directions, random_directions, \
     sun_xu_directions
+import numpy as np
+import pytest
 
 T_PAPER = np.array([[1.15, 0.0602, -0.0401], [0, 1.0985, 0.0575], [0, 0, 1.0978]])
 B_PAPER = np.array([0.1, 0.15, 0.2])

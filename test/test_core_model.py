@@ -1,14 +1,13 @@
 """Static windows, thermal tables, the calibration model and its file; real recordings."""
 
-import numpy as np
-import pytest
-
-import peer_data
 from accel_calib_ros.core.calibration import calibrate, Calibration, gravity_residuals
 from accel_calib_ros.core.errors import CalibrationError, InputError
 from accel_calib_ros.core.simulate import mpu9250_like, random_directions, simulate_session
 from accel_calib_ros.core.thermal import fit_thermal_table
 from accel_calib_ros.core.windows import detect_static_windows, OnlineStaticDetector
+import numpy as np
+import peer_data
+import pytest
 
 G = 9.80665
 

@@ -1,4 +1,5 @@
-"""The calibration model: fit it, apply it, check it, save and load it.
+"""
+The calibration model: fit it, apply it, check it, save and load it.
 
 Convention (spec section 3)::
 
@@ -32,7 +33,8 @@ METHODS = ('ml', 'ml-bc', 'gn', 'ellipsoid')
 
 @dataclass
 class Calibration:
-    """A fitted accelerometer calibration (see module docstring for the model).
+    """
+    A fitted accelerometer calibration (see module docstring for the model).
 
     :param T: (3, 3) upper triangular, dimensionless.
     :param bias: (3,) m/s².
@@ -81,7 +83,7 @@ class Calibration:
                          for i, j in pairs])
 
     def drift(self, raw, temp=None):
-        """Temperature drift (N, 3) m/s² for raw readings (N, 3) at temps (N,) °C."""
+        """Return the temperature drift, m/s² (N, 3), of raw readings (N, 3) at temps °C (N,)."""
         raw = np.atleast_2d(np.asarray(raw, float))
         if self.thermal is None or temp is None:
             return np.zeros_like(raw)
@@ -102,7 +104,8 @@ class Calibration:
         return raw
 
     def acceleration_covariance(self):
-        """3x3 covariance of one corrected sample at rest, (m/s²)², row-major.
+        """
+        3x3 covariance of one corrected sample at rest, (m/s²)², row-major.
 
         Sensor noise mapped through T⁻¹ plus the parameter uncertainty propagated to
         a gravity-sized vector, averaged over directions.
@@ -140,25 +143,25 @@ class Calibration:
     # -- files -------------------------------------------------------------------------
     def to_dict(self):
         """Versioned, YAML-ready mapping with units in the key names."""
-        d = dict(
-            format=FORMAT, version=VERSION, created=self.created, source=self.source,
-            model='raw = T @ true + bias + drift(raw, temp); '
-                  'true = inv(T) @ (raw - bias - drift(raw, temp))',
-            method=self.method, gravity_m_s2=float(self.gravity),
-            T=[[float(v) for v in row] for row in self.T],
-            bias_m_s2=[float(v) for v in self.bias],
-            scale=[float(v) for v in self.scale],
-            nonorthogonality_deg=dict(zip(('xy', 'xz', 'yz'),
-                                          (float(v) for v in self.nonorthogonality_deg))),
-            fit=dict(observations=int(self.observations), iterations=int(self.iterations),
-                     converged=bool(self.converged), seconds=float(self.seconds),
-                     residual_rms_m_s2=float(self.residual_rms),
-                     noise_std_m_s2=[float(v) for v in self.noise_std]),
-        )
+        d = {
+            'format': FORMAT, 'version': VERSION, 'created': self.created, 'source': self.source,
+            'model': 'raw = T @ true + bias + drift(raw, temp); '
+            'true = inv(T) @ (raw - bias - drift(raw, temp))',
+            'method': self.method, 'gravity_m_s2': float(self.gravity),
+            'T': [[float(v) for v in row] for row in self.T],
+            'bias_m_s2': [float(v) for v in self.bias],
+            'scale': [float(v) for v in self.scale],
+            'nonorthogonality_deg': dict(zip(('xy', 'xz', 'yz'),
+                                             (float(v) for v in self.nonorthogonality_deg))),
+            'fit': {'observations': int(self.observations), 'iterations': int(self.iterations),
+                    'converged': bool(self.converged), 'seconds': float(self.seconds),
+                    'residual_rms_m_s2': float(self.residual_rms),
+                    'noise_std_m_s2': [float(v) for v in self.noise_std]},
+        }
         if self.covariance is not None:
-            d['covariance'] = dict(
-                order=list(PARAMETER_NAMES), units='T dimensionless, b in m/s2',
-                matrix=[[float(v) for v in row] for row in self.covariance])
+            d['covariance'] = {
+                'order': list(PARAMETER_NAMES), 'units': 'T dimensionless, b in m/s2',
+                'matrix': [[float(v) for v in row] for row in self.covariance]}
         if self.thermal is not None:
             d['thermal'] = self.thermal.to_dict()
         return d
@@ -264,16 +267,17 @@ def _fit_reference(y, gravity, method, weights):
     else:
         t0 = time.perf_counter()
         T, bias = fit_ellipsoid(y, weights, gravity)
-        return T, bias, None, dict(iterations=0, converged=True,
-                                   seconds=time.perf_counter() - t0, trace=[])
-    info = dict(iterations=fit.iterations, converged=fit.converged, seconds=fit.seconds,
-                trace=fit.trace)
+        return T, bias, None, {'iterations': 0, 'converged': True,
+                               'seconds': time.perf_counter() - t0, 'trace': []}
+    info = {'iterations': fit.iterations, 'converged': fit.converged, 'seconds': fit.seconds,
+            'trace': fit.trace}
     return T, bias, cov, info
 
 
 def calibrate(readings, gravity=9.80665, method='ml', weights=None, temps=None,
               thermal=False, band_width_c=10.0, noise_std=None, source=''):
-    """Fit a Calibration to static observations (window means or samples).
+    """
+    Fit a Calibration to static observations (window means or samples).
 
     :param readings: (N, 3) raw readings, m/s².
     :param gravity: local gravity, m/s².

@@ -16,7 +16,8 @@ def _design(x):
 
 
 def fit_ellipsoid(readings, weights=None, radius=1.0):
-    """Fit ``readings`` to an ellipsoid: ``readings = T @ u + bias`` with ``|u| = radius``.
+    """
+    Fit ``readings`` to an ellipsoid: ``readings = T @ u + bias`` with ``|u| = radius``.
 
     Algebraic least squares on eq. 17 (smallest singular vector of the weighted design
     matrix, after centring and scaling the data for conditioning), then

@@ -2,7 +2,8 @@
 
 
 class CalibrationError(Exception):
-    """A calibration cannot be solved from the data given (CLI exit status 1).
+    """
+    A calibration cannot be solved from the data given (CLI exit status 1).
 
     The message says why and what to record instead.
     """

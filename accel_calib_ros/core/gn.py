@@ -1,4 +1,5 @@
-"""Six-parameter Gauss-Newton calibration (Gui Yi, eq. 11-17).
+"""
+Six-parameter Gauss-Newton calibration (Gui Yi, eq. 11-17).
 
 Model (eq. 11): ``a_i = k_i (y_i - d_i)`` for each axis i, with the constraint
 ``|a| = g`` (eq. 12). Gauss-Newton on the squared-norm residual of eq. 13-14,
@@ -17,7 +18,8 @@ from .errors import CalibrationError
 
 @dataclass
 class GNResult:
-    """Outcome of :func:`fit_gn`.
+    """
+    Outcome of :func:`fit_gn`.
 
     :param scale: (3,) k_i of eq. 11, dimensionless true per raw (T = diag(1 / scale)).
     :param bias: (3,) d_i, reading units.
@@ -61,7 +63,8 @@ def _axis_aligned_start(y, w):
 
 
 def fit_gn(readings, weights=None, radius=1.0, max_iter=100, tol=1e-12):
-    """Six-parameter Gauss-Newton calibration (Gui Yi 2016, eq. 11-17).
+    """
+    Six-parameter Gauss-Newton calibration (Gui Yi 2016, eq. 11-17).
 
     The paper starts from bias 0 and scale 1; that start only works for readings
     already near SI units, so the iteration here starts from an axis-aligned

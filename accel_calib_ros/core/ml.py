@@ -1,4 +1,5 @@
-"""Maximum-likelihood accelerometer calibration (Sun & Xu 2020, eq. 9-15).
+"""
+Maximum-likelihood accelerometer calibration (Sun & Xu 2020, eq. 9-15).
 
 Model (eq. 4), in units of the gravity magnitude::
 
@@ -59,7 +60,8 @@ def _normalise(v):
 
 @dataclass
 class MLResult:
-    """Outcome of :func:`fit_ml`, in the units of the readings.
+    """
+    Outcome of :func:`fit_ml`, in the units of the readings.
 
     :param T: (3, 3) upper-triangular, dimensionless (readings per true unit).
     :param bias: (3,) in reading units.
@@ -95,7 +97,8 @@ class _Problem:
         return 0.5 * float(np.sum(self.w * np.einsum('ij,ij->i', r, r)))
 
     def schur(self, p, u, damping=0.0):
-        """Reduced 9x9 Newton system ``S dp = rhs`` and the back-substitution pieces.
+        """
+        Reduced 9x9 Newton system ``S dp = rhs`` and the back-substitution pieces.
 
         Per observation the KKT block is ``[[M_k, u_k], [u_kᵀ, 0]]`` with
         ``M_k = w_k TᵀT + lambda_k I``. All ``M_k`` share the eigenvectors ``V`` of
@@ -165,7 +168,8 @@ def _initial_directions(y, T, b):
 
 
 def fit_ml(readings, weights=None, radius=1.0, start=None, max_iter=100, tol=1e-12):
-    """Maximum-likelihood calibration by damped Newton iteration (Sun & Xu 2020).
+    """
+    Maximum-likelihood calibration by damped Newton iteration (Sun & Xu 2020).
 
     :param readings: (N, 3) raw readings (window means or samples), N >= 10.
     :param weights: (N,) relative weights, e.g. samples per window (default 1).
@@ -240,7 +244,8 @@ def fit_ml(readings, weights=None, radius=1.0, start=None, max_iter=100, tol=1e-
 
 
 def fit_ml_bias_corrected(readings, weights=None, radius=1.0, replicates=64, seed=0, **kw):
-    """ML with its O(sigma²) bias removed by a parametric bootstrap.
+    """
+    ML with its O(sigma²) bias removed by a parametric bootstrap.
 
     Plain ML on a sphere constraint is biased by O(sigma²) (the curvature of the
     ellipsoid): at sigma = 0.1 g and N in the thousands that bias is as large as the
@@ -279,7 +284,8 @@ def fit_ml_bias_corrected(readings, weights=None, radius=1.0, replicates=64, see
 
 
 def cramer_rao_bound(T, bias, directions, sigma, weights=None, radius=1.0):
-    """Cramér-Rao bound for (T upper, bias) under the ML model.
+    """
+    Cramér-Rao bound for (T upper, bias) under the ML model.
 
     For each observation the information is ``g gᵀ / sigma²`` with ``g = Gᵀ n``: ``G``
     the (3, 9) Jacobian of the ideal reading ``T (radius u) + b`` and ``n`` the unit

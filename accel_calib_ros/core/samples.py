@@ -10,7 +10,8 @@ from .errors import InputError
 
 @dataclass
 class Samples:
-    """A recording of accelerometer samples, SI units (REP-103).
+    """
+    A recording of accelerometer samples, SI units (REP-103).
 
     :param t: sample times, shape (N,), seconds, non-decreasing.
     :param accel: raw specific force, shape (N, 3), m/s².
@@ -67,7 +68,7 @@ class Samples:
         dt = np.median(np.diff(self.t))
         return float(1.0 / dt) if dt > 0 else float('nan')
 
-    def slice(self, index):
+    def subset(self, index):
         """Return the samples selected by a slice or index array."""
         return Samples(
             self.t[index], self.accel[index],

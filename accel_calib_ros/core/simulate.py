@@ -1,4 +1,5 @@
-"""Simulated MEMS accelerometer and calibration sessions.
+"""
+Simulated MEMS accelerometer and calibration sessions.
 
 The forward model, for true specific force ``a`` (m/s², body frame), temperature
 ``theta`` (°C) and time ``t`` (s)::
@@ -33,7 +34,8 @@ def _vec3(value):
 
 @dataclass
 class SensorModel:
-    """True error parameters of a simulated accelerometer.
+    """
+    True error parameters of a simulated accelerometer.
 
     :param T: (3, 3) upper-triangular scale x non-orthogonality, raw = T @ true + bias.
     :param bias: (3,) zero-g offset at ``temp_ref``, m/s².
@@ -67,7 +69,8 @@ class SensorModel:
         return replace(self, **fields)
 
     def distort(self, true_accel, temp=None, t=None):
-        """Noise-free raw reading for true specific force.
+        """
+        Noise-free raw reading for true specific force.
 
         :param true_accel: (N, 3) true specific force, m/s².
         :param temp: (N,) temperature, °C (default ``temp_ref``).
@@ -81,7 +84,8 @@ class SensorModel:
         s = a @ self.T.T
         s = s * (1.0 + dtheta[:, None] * self.scale_tempco)
         raw = s + self.nonlinearity * s ** 2 / G0
-        raw = raw + self.bias + dtheta[:, None] * self.bias_tempco + time[:, None] * self.bias_drift
+        raw = raw + self.bias + dtheta[:, None] * self.bias_tempco
+        raw = raw + time[:, None] * self.bias_drift
         return raw
 
     def measure(self, true_accel, rng, temp=None, t=None):
@@ -94,7 +98,8 @@ class SensorModel:
 
 
 def mpu9250_like(rng, rate_hz=100.0, effects=()):
-    """Draw a sensor with MPU-9250 datasheet error magnitudes.
+    """
+    Draw a sensor with MPU-9250 datasheet error magnitudes.
 
     Scale ±3 %, cross-axis ±2 %, zero-g offset ±60 mg (x, y) / ±80 mg (z), noise
     300 µg/√Hz over a bandwidth of rate/2, ±2 g quantisation. Effects beyond the
@@ -139,12 +144,13 @@ def random_directions(n, rng):
 
 
 def face_directions():
-    """The six-face session: ±x, ±y, ±z up, shape (6, 3)."""
+    """Return the six-face session directions: ±x, ±y, ±z up, shape (6, 3)."""
     return np.vstack([np.eye(3), -np.eye(3)])[[0, 3, 1, 4, 2, 5]]
 
 
 def sun_xu_directions(n, rng, amplitude_deg=(120.0, 120.0, 80.0)):
-    """Gravity directions of Sun & Xu's simulation (Euler angles x U(-1, 1)).
+    """
+    Gravity directions of Sun & Xu's simulation (Euler angles x U(-1, 1)).
 
     Pitch, roll and heading amplitudes 120°, 120°, 80°, each multiplied by a uniform
     random number; gravity (0, 0, 1) in the navigation frame rotated into the body.
@@ -165,7 +171,8 @@ def _rotation_to(direction):
 
 @dataclass
 class Session:
-    """A simulated calibration session: samples plus the truth behind them.
+    """
+    A simulated calibration session: samples plus the truth behind them.
 
     ``pose`` is the index of the held pose for each sample, -1 while moving.
     """
@@ -180,7 +187,8 @@ class Session:
 
 def simulate_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=100.0,
                      gravity=G0, temperature=25.0, motion_accel=1.5, lead_s=None):
-    """Simulate someone turning the sensor through a sequence of held poses.
+    """
+    Simulate someone turning the sensor through a sequence of held poses.
 
     :param sensor: SensorModel that produces the raw readings.
     :param directions: (P, 3) unit gravity directions in the body frame, one per pose.
@@ -245,7 +253,8 @@ def simulate_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=10
 
 
 def simulate_window_means(sensor, directions, n_samples, rng, gravity=G0, temp=None, t=None):
-    """Window means of static poses directly, without simulating every sample.
+    """
+    Window means of static poses directly, without simulating every sample.
 
     :param directions: (N, 3) unit gravity directions.
     :param n_samples: (N,) samples averaged in each window.

@@ -1,4 +1,5 @@
-"""Temperature-band drift tables (Gui Yi, eq. 4-5), without jumps at band edges.
+"""
+Temperature-band drift tables (Gui Yi, eq. 4-5), without jumps at band edges.
 
 Within each temperature band the drift of axis i is a quadratic in the measured
 acceleration (eq. 4)::
@@ -13,7 +14,8 @@ calibration plus the band's drift, have the local gravity magnitude.
 
 Beyond the paper: the coefficients are attached to the mean temperature of the
 windows that built the band and interpolated linearly between neighbouring bands
-(extended linearly to the outer band edges, held constant beyond), so the correction is continuous in temperature, and the coefficients are fitted
+(extended linearly to the outer band edges, held constant beyond), so the
+correction is continuous in temperature, and the coefficients are fitted
 jointly with that same interpolation (each window sees the blend at its own
 temperature), so fit and lookup agree; a band with too few windows or a
 geometry that cannot separate its nine coefficients is reported and skipped (its
@@ -30,7 +32,8 @@ MIN_WINDOWS_PER_BAND = 12
 
 @dataclass
 class ThermalBand:
-    """Drift coefficients of one temperature band.
+    """
+    Drift coefficients of one temperature band.
 
     :param low_c: band lower edge, °C (inclusive); ``high_c``: upper edge (exclusive).
     :param temp_c: mean temperature of the band's windows, °C (interpolation node).
@@ -52,12 +55,12 @@ class ThermalBand:
 
     def to_dict(self):
         """Plain YAML-ready mapping."""
-        return dict(low_c=float(self.low_c), high_c=float(self.high_c),
-                    temp_c=float(self.temp_c), windows=int(self.windows),
-                    status=self.status, residual_rms_m_s2=float(self.residual_rms),
-                    quadratic_per_m_s2=[float(v) for v in self.quadratic],
-                    linear=[float(v) for v in self.linear],
-                    offset_m_s2=[float(v) for v in self.offset])
+        return {'low_c': float(self.low_c), 'high_c': float(self.high_c),
+                'temp_c': float(self.temp_c), 'windows': int(self.windows),
+                'status': self.status, 'residual_rms_m_s2': float(self.residual_rms),
+                'quadratic_per_m_s2': [float(v) for v in self.quadratic],
+                'linear': [float(v) for v in self.linear],
+                'offset_m_s2': [float(v) for v in self.offset]}
 
     @classmethod
     def from_dict(cls, d):
@@ -108,10 +111,10 @@ class ThermalTable:
 
     def to_dict(self):
         """Plain YAML-ready mapping."""
-        return dict(band_width_c=float(self.band_width_c),
-                    interpolation='linear between band temperatures, extended linearly to the '
-                                  'outer band edges, held beyond',
-                    bands=[b.to_dict() for b in self.bands])
+        return {'band_width_c': float(self.band_width_c),
+                'interpolation': 'linear between band temperatures, extended linearly to the '
+                'outer band edges, held beyond',
+                'bands': [b.to_dict() for b in self.bands]}
 
     @classmethod
     def from_dict(cls, d):
@@ -120,7 +123,8 @@ class ThermalTable:
 
 
 def _basis(temps, nodes, low, high):
-    """Interpolation weights (N, B) of each temperature on the node grid.
+    """
+    Interpolation weights (N, B) of each temperature on the node grid.
 
     Linear between nodes, extended linearly from the end segments out to the covered
     range [low, high] (the outer band edges), and held constant beyond it.
@@ -139,7 +143,8 @@ def _basis(temps, nodes, low, high):
 
 
 def _fit_nodes(z, w, phi, R, b, iterations=10):
-    """Fit normalised drift coefficients at every node jointly.
+    """
+    Fit normalised drift coefficients at every node jointly.
 
     The drift of window k is ``sum_j phi[k, j] * (L_j z² + M_j z + N_j)`` per axis,
     exactly the interpolation used at run time, and the coefficients make
@@ -176,7 +181,8 @@ def _fit_nodes(z, w, phi, R, b, iterations=10):
 
 def fit_thermal_table(readings, temps, T, bias, gravity, weights=None, band_width_c=10.0,
                       min_windows=MIN_WINDOWS_PER_BAND):
-    """Fit temperature-band drift tables against a reference calibration.
+    """
+    Fit temperature-band drift tables against a reference calibration.
 
     Windows are grouped into bands of ``band_width_c`` (edges at multiples of it). A
     band with at least ``min_windows`` windows contributes a node at the mean

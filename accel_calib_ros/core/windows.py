@@ -1,4 +1,5 @@
-"""Static-window detection: find the stretches where the sensor was held still.
+"""
+Static-window detection: find the stretches where the sensor was held still.
 
 A sample is still when the moving standard deviation of the acceleration (and,
 if asked, of the angular rate) over ``window_s`` stays below ``threshold_factor``
@@ -15,13 +16,14 @@ import numpy as np
 
 from .errors import CalibrationError
 
-DEFAULTS = dict(window_s=0.5, min_duration_s=1.0, threshold_factor=3.0, trim_s=0.2,
-                floor_quantile=0.05)
+DEFAULTS = {'window_s': 0.5, 'min_duration_s': 1.0, 'threshold_factor': 3.0, 'trim_s': 0.2,
+            'floor_quantile': 0.05}
 
 
 @dataclass
 class StaticWindows:
-    """Static windows of a recording, one row per window.
+    """
+    Static windows of a recording, one row per window.
 
     :param start: (W,) first sample index (inclusive).
     :param stop: (W,) last sample index (exclusive).
@@ -58,7 +60,8 @@ class StaticWindows:
                              self.temp[index], self.noise_floor)
 
     def weights(self, max_weight_s=None, rate_hz=None):
-        """Observation weights: samples per window, capped at ``max_weight_s`` of data.
+        """
+        Observation weights: samples per window, capped at ``max_weight_s`` of data.
 
         Averaging beyond a few seconds stops helping on a real MEMS sensor (bias
         instability, flicker noise) while model errors do not average out, so very
@@ -91,7 +94,8 @@ def _runs(mask):
 def still_mask(samples, window_s=DEFAULTS['window_s'],
                threshold_factor=DEFAULTS['threshold_factor'],
                floor_quantile=DEFAULTS['floor_quantile'], use_gyro=False):
-    """Boolean (N,) mask of still samples and the accelerometer noise floor (m/s²).
+    """
+    Boolean (N,) mask of still samples and the accelerometer noise floor (m/s²).
 
     The gyro is off by default: a pose held by hand shakes the gyro far above the
     floor of a table-still stretch while the specific force stays steady, and a
@@ -117,7 +121,8 @@ def detect_static_windows(samples, window_s=DEFAULTS['window_s'],
                           threshold_factor=DEFAULTS['threshold_factor'],
                           trim_s=DEFAULTS['trim_s'],
                           floor_quantile=DEFAULTS['floor_quantile']):
-    """Find the static windows of a recording.
+    """
+    Find the static windows of a recording.
 
     :param samples: Samples (validated).
     :param window_s: moving standard deviation window, s.
@@ -158,7 +163,7 @@ def windows_from_ranges(samples, starts, stops, noise_floor=float('nan')):
 
 
 def distinct_directions(vectors, min_angle_deg=10.0):
-    """Number of directions among ``vectors`` (N, 3) at least ``min_angle_deg`` apart."""
+    """Count the directions among ``vectors`` (N, 3) at least ``min_angle_deg`` apart."""
     u = np.asarray(vectors, float)
     u = u / np.linalg.norm(u, axis=1, keepdims=True)
     cos_min = np.cos(np.radians(min_angle_deg))
@@ -170,15 +175,16 @@ def distinct_directions(vectors, min_angle_deg=10.0):
 
 
 class OnlineStaticDetector:
-    """Streaming static-window detector with bounded memory.
+    """
+    Streaming static-window detector with bounded memory.
 
     Feed samples one at a time; a window is emitted when the sensor starts to move
     after having been still long enough that ``min_duration_s`` of samples remain
-    once both ends are trimmed (a pose held 2 s gives about 1.4 s of window). Memory is O(window_s x
-    rate): a ring of recent samples for the moving standard deviation plus running
-    sums for the window being collected. The noise floor is learned from the data:
-    the smallest moving standard deviation seen in the last ``floor_memory_s``, but
-    never below ``min_floor``.
+    once both ends are trimmed (a pose held 2 s gives about 1.4 s of window).
+    Memory is O(window_s x rate): a ring of recent samples for the moving
+    standard deviation plus running sums for the window being collected. The
+    noise floor is learned from the data: the smallest moving standard deviation
+    seen in the last ``floor_memory_s``, but never below ``min_floor``.
 
     :param rate_hz: nominal sample rate, Hz.
     :param min_floor: smallest noise floor believed, m/s² (ADC step and the like).
@@ -216,7 +222,8 @@ class OnlineStaticDetector:
         return float(np.sqrt(var.mean()))
 
     def update(self, t, accel, temp=float('nan')):
-        """Add one sample (t s, accel (3,) m/s², temp °C); return a finished window or None.
+        """
+        Add one sample (t s, accel (3,) m/s², temp °C); return a finished window or None.
 
         A finished window is a dict with keys mean (3,), scatter (3,), count,
         t_mid, temp, t_start, t_stop.
@@ -257,8 +264,8 @@ class OnlineStaticDetector:
     def _accumulate(self, sample):
         t, a, temp = sample
         if self._acc is None:
-            self._acc = dict(n=0, mean=np.zeros(3), m2=np.zeros(3), t0=t, t1=t,
-                             temp_sum=0.0, temp_n=0)
+            self._acc = {'n': 0, 'mean': np.zeros(3), 'm2': np.zeros(3), 't0': t, 't1': t,
+                         'temp_sum': 0.0, 'temp_n': 0}
         acc = self._acc
         acc['n'] += 1
         delta = a - acc['mean']
@@ -278,8 +285,8 @@ class OnlineStaticDetector:
         # the leading ones were skipped by the delay: both ends are trimmed.
         if acc['n'] < self.min_len:
             return None
-        return dict(mean=acc['mean'].copy(),
-                    scatter=np.sqrt(acc['m2'] / max(acc['n'] - 1, 1)),
-                    count=acc['n'], t_start=acc['t0'], t_stop=acc['t1'],
-                    t_mid=0.5 * (acc['t0'] + acc['t1']),
-                    temp=acc['temp_sum'] / acc['temp_n'] if acc['temp_n'] else float('nan'))
+        return {'mean': acc['mean'].copy(),
+                'scatter': np.sqrt(acc['m2'] / max(acc['n'] - 1, 1)),
+                'count': acc['n'], 't_start': acc['t0'], 't_stop': acc['t1'],
+                't_mid': 0.5 * (acc['t0'] + acc['t1']),
+                'temp': acc['temp_sum'] / acc['temp_n'] if acc['temp_n'] else float('nan')}
