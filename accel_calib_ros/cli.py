@@ -42,7 +42,8 @@ def _add_data_args(p):
 def _add_window_args(p):
     g = p.add_argument_group('static windows')
     g.add_argument('--min-window-s', type=float, default=DEFAULTS['min_duration_s'],
-                   help='shortest static window kept, s (default %(default)s)')
+                   help='shortest static window kept after trimming its ends, s '
+                        '(default %(default)s: poses held about 1.5 s or longer)')
     g.add_argument('--threshold-factor', type=float, default=DEFAULTS['threshold_factor'],
                    help='still when moving std < factor x noise floor (default %(default)s)')
     g.add_argument('--max-weight-s', type=float, default=MAX_WEIGHT_S,
@@ -142,7 +143,8 @@ def _observations(samples, args):
     if len(windows) == 0:
         raise CalibrationError(
             'no static windows found: hold each pose still for at least '
-            f'{args.min_window_s:g} s (or use --mode samples for a moving recording)')
+            f'{args.min_window_s + 2 * DEFAULTS["trim_s"] + DEFAULTS["window_s"]:g} s '
+            '(or use --mode samples for a moving recording)')
     weights = windows.weights(args.max_weight_s, samples.rate_hz)
     return windows.mean, weights, windows.temp, windows.noise_std, len(windows)
 

@@ -16,8 +16,8 @@ import numpy as np
 
 from .errors import CalibrationError
 
-DEFAULTS = {'window_s': 0.5, 'min_duration_s': 1.0, 'threshold_factor': 3.0, 'trim_s': 0.2,
-            'floor_quantile': 0.05}
+DEFAULTS = {'window_s': 0.5, 'min_duration_s': 0.5, 'threshold_factor': 3.0, 'trim_s': 0.2,
+            'floor_quantile': 0.02}
 
 
 @dataclass
