@@ -1,0 +1,452 @@
+"""
+A virtual MPU9250 behind a microcontroller, streaming spec frames on a pseudo-terminal.
+
+Stands in for the hardware in the demo and the tests: open the printed slave path (or
+the ``--link`` symlink) as the serial port. The sensor follows a scripted sequence of
+held poses (core simulator), the frames carry a ``seq`` counter and a µs device clock
+that starts at an arbitrary value and wraps. ``SIGUSR1`` unplugs the device for
+``--unplug-s`` seconds and plugs it back in on a new pty (the link is re-pointed);
+``SIGINT``/``SIGTERM`` stop it. A summary goes to stderr on exit.
+"""
+
+import argparse
+import errno
+import math
+import os
+import signal
+import sys
+import time
+import tty
+
+import numpy as np
+
+from .core.simulate import (face_directions, G0, mpu9250_like, random_directions,
+                            simulate_session)
+from .io.mpu9250_frame import (ACCEL_LSB_PER_G, Converter, encode_ascii_line, encode_frame,
+                               FRAME_SIZE, GYRO_LSB_PER_DPS)
+
+CHUNK_S = 10.0
+"""Seconds of samples simulated at a time once the script has ended."""
+EFFECTS = ('scale_nonlinearity', 'temperature_bias', 'temperature_scale', 'bias_drift')
+
+
+class DeviceError(Exception):
+    """A bad option or input file (exit status 2)."""
+
+
+def _positive(text):
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'not a number: {text!r}')
+    if not value > 0 or not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f'must be positive, got {text}')
+    return value
+
+
+def _fraction(text):
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'not a number: {text!r}')
+    if not 0.0 <= value < 1.0:
+        raise argparse.ArgumentTypeError(f'must be in [0, 1), got {text}')
+    return value
+
+
+def _non_negative(text):
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'not a number: {text!r}')
+    if not value >= 0 or not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f'must be >= 0, got {text}')
+    return value
+
+
+def add_arguments(parser):
+    """
+    Add the device options to an argparse parser.
+
+    :param parser: argparse.ArgumentParser (or subparser).
+    """
+    parser.add_argument('--link', help='maintain a symlink PATH -> current pty slave')
+    parser.add_argument('--rate', type=_positive, default=200.0,
+                        help='sample rate, Hz (default %(default)s)')
+    parser.add_argument('--seed', type=int, default=0, help='random seed (default 0)')
+    parser.add_argument('--poses', default='faces',
+                        help='pose script: faces (six faces), random, or a CSV file of '
+                             'gravity directions x,y,z in the body frame (default faces)')
+    parser.add_argument('--count', type=int, default=None,
+                        help='number of random poses (default 12); for faces, repeat the '
+                             'six faces up to COUNT poses')
+    parser.add_argument('--hold', type=_positive, default=3.0,
+                        help='seconds each pose is held (default %(default)s)')
+    parser.add_argument('--move', type=_positive, default=1.5,
+                        help='seconds each move takes (default %(default)s)')
+    parser.add_argument('--loop', action='store_true',
+                        help='repeat the script (default: hold the last pose)')
+    parser.add_argument('--temp', type=float, default=25.0,
+                        help='constant temperature, °C (default %(default)s)')
+    parser.add_argument('--temp-ramp', type=float, nargs=2, metavar=('START', 'END'),
+                        help='temperature ramp over the script, °C')
+    parser.add_argument('--effects', default='',
+                        help='comma-separated extra sensor effects: ' + ', '.join(EFFECTS))
+    parser.add_argument('--accel-range', type=int, default=2, choices=sorted(ACCEL_LSB_PER_G),
+                        help='accelerometer full scale, ±g (default 2)')
+    parser.add_argument('--gyro-range', type=int, default=250,
+                        choices=sorted(GYRO_LSB_PER_DPS),
+                        help='gyroscope full scale, ±°/s (default 250)')
+    parser.add_argument('--gravity', type=_positive, default=G0, help='gravity, m/s²')
+    parser.add_argument('--truth-out', metavar='FILE.yaml',
+                        help='write the true sensor parameters to this YAML file')
+    parser.add_argument('--t0-us', type=int, default=None,
+                        help='device clock at the first frame, µs (default: random; the '
+                             'clock wraps at 2**32)')
+    parser.add_argument('--corrupt', type=_fraction, default=0.0,
+                        help='fraction of bytes to flip on the wire, e.g. 0.02 (default 0)')
+    parser.add_argument('--ascii', action='store_true',
+                        help='stream the ASCII line format (t_us,ax,ay,az,temp,gx,gy,gz)')
+    parser.add_argument('--unplug-s', type=_non_negative, default=2.0,
+                        help='seconds unplugged after SIGUSR1 (default %(default)s)')
+    parser.add_argument('--duration', type=_positive, default=None,
+                        help='stop after this many seconds (default: run until SIGINT)')
+    return parser
+
+
+def _directions(args, rng):
+    if args.poses == 'faces':
+        faces = face_directions()
+        count = args.count or 6
+        return faces[np.arange(count) % 6]
+    if args.poses == 'random':
+        return random_directions(args.count or 12, rng)
+    path = args.poses
+    try:
+        with open(path) as f:
+            rows = []
+            for number, line in enumerate(f, 1):
+                text = line.strip()
+                if not text or text.startswith('#'):
+                    continue
+                fields = text.replace(';', ',').split(',')
+                try:
+                    rows.append([float(v) for v in fields[:3]])
+                except ValueError:
+                    if rows or number > 1:
+                        raise DeviceError(f'{path}:{number}: expected x,y,z numbers')
+                    continue                     # header row
+                if len(fields) < 3:
+                    raise DeviceError(f'{path}:{number}: expected x,y,z numbers')
+    except OSError as err:
+        raise DeviceError(f'cannot read pose file {path}: {err.strerror}')
+    d = np.asarray(rows, float).reshape(-1, 3)
+    if len(d) == 0:
+        raise DeviceError(f'pose file {path} holds no poses')
+    norms = np.linalg.norm(d, axis=1)
+    if not np.all(np.isfinite(norms)) or np.any(norms < 1e-9):
+        raise DeviceError(f'pose file {path}: every direction needs a non-zero finite length')
+    d = d / norms[:, None]
+    return d[np.arange(args.count) % len(d)] if args.count else d
+
+
+class VirtualSensor:
+    """
+    Sample source: the scripted session, then the last pose held (or the script looped).
+
+    :param args: parsed options.
+    """
+
+    def __init__(self, args):
+        self.rng = np.random.default_rng(args.seed)
+        effects = [e for e in args.effects.split(',') if e]
+        for name in effects:
+            if name not in EFFECTS:
+                raise DeviceError(f'unknown effect {name!r}: use {", ".join(EFFECTS)}')
+        self.sensor = mpu9250_like(self.rng, rate_hz=args.rate, effects=effects)
+        self.args = args
+        self.directions = _directions(args, self.rng)
+        self.converter = Converter(args.accel_range, args.gyro_range)
+        self.t_offset = 0.0
+        self.script_s = None
+        self._queue = []
+
+    def truth(self):
+        """Return the true parameters as a YAML-ready mapping (m/s², °C, s)."""
+        s = self.sensor
+        a = self.args
+        return {'T': s.T.tolist(), 'bias_m_s2': s.bias.tolist(),
+                'noise_std_m_s2': s.noise_std.tolist(), 'lsb_m_s2': float(s.lsb),
+                'nonlinearity': s.nonlinearity.tolist(),
+                'bias_tempco_m_s2_per_c': s.bias_tempco.tolist(),
+                'scale_tempco_per_c': s.scale_tempco.tolist(),
+                'bias_drift_m_s2_per_s': s.bias_drift.tolist(),
+                'temp_ref_c': float(s.temp_ref), 'gravity_m_s2': float(a.gravity),
+                'rate_hz': float(a.rate), 'accel_range_g': a.accel_range,
+                'gyro_range_dps': a.gyro_range, 'directions': self.directions.tolist(),
+                'hold_s': float(a.hold), 'move_s': float(a.move),
+                'temperature_c': list(a.temp_ramp) if a.temp_ramp else float(a.temp)}
+
+    def _script(self):
+        a = self.args
+        temperature = tuple(a.temp_ramp) if a.temp_ramp else a.temp
+        session = simulate_session(self.sensor, self.directions, self.rng, hold_s=a.hold,
+                                   move_s=a.move, rate_hz=a.rate, gravity=a.gravity,
+                                   temperature=temperature)
+        s = session.samples
+        self.script_s = len(s) / a.rate
+        return self.converter.to_counts_array(s.accel, s.temp, s.gyro)
+
+    def _hold(self, t_start):
+        a = self.args
+        n = int(round(CHUNK_S * a.rate))
+        t = t_start + np.arange(n) / a.rate
+        temp = np.full(n, a.temp_ramp[1] if a.temp_ramp else a.temp)
+        true = np.tile(a.gravity * self.directions[-1], (n, 1))
+        accel = self.sensor.measure(true, self.rng, temp, t)
+        gyro = self.rng.standard_normal((n, 3)) * 0.002
+        return self.converter.to_counts_array(accel, temp, gyro)
+
+    def counts(self, n, t_next):
+        """
+        Return the next ``n`` samples as an (n, 7) int16 array.
+
+        :param t_next: session time of the first of them, s.
+        """
+        parts, have = [], 0
+        while have < n:
+            if not self._queue:
+                if self.script_s is None or self.args.loop:
+                    self._queue.append(self._script())
+                else:
+                    self._queue.append(self._hold(t_next + have / self.args.rate))
+            block = self._queue[0]
+            take = min(n - have, len(block))
+            parts.append(block[:take])
+            if take == len(block):
+                self._queue.pop(0)
+            else:
+                self._queue[0] = block[take:]
+            have += take
+        return np.concatenate(parts) if parts else np.zeros((0, 7), np.int16)
+
+
+class Wire:
+    """
+    Encodes samples into bytes, optionally corrupting them, and counts what it did.
+
+    :param args: parsed options.
+    :param rng: numpy Generator for the corruption and the start of the device clock.
+    """
+
+    def __init__(self, args, rng):
+        self.ascii = args.ascii
+        self.corrupt = args.corrupt
+        self.rng = rng
+        self.period_us = 1e6 / args.rate
+        self.t0_us = args.t0_us if args.t0_us is not None else int(rng.integers(0, 2 ** 32))
+        self.seq = 0
+        self.frames = 0
+        self.bytes_corrupted = 0
+        self.frames_damaged = 0
+
+    def encode(self, counts, first_index):
+        """Encode samples number ``first_index``... as bytes (corrupted if asked)."""
+        pieces, sizes = [], []
+        for k, row in enumerate(counts.tolist()):
+            t_us = (self.t0_us + int(round((first_index + k) * self.period_us))) & 0xFFFFFFFF
+            if self.ascii:
+                piece = encode_ascii_line(row, t_us)
+            else:
+                piece = encode_frame(self.seq, t_us, row)
+            self.seq = (self.seq + 1) & 0xFF
+            pieces.append(piece)
+            sizes.append(len(piece))
+        self.frames += len(pieces)
+        data = b''.join(pieces)
+        if self.corrupt > 0 and data:
+            buf = np.frombuffer(data, np.uint8).copy()
+            hit = np.flatnonzero(self.rng.random(len(buf)) < self.corrupt)
+            if len(hit):
+                buf[hit] ^= self.rng.integers(1, 256, len(hit)).astype(np.uint8)
+                self.bytes_corrupted += len(hit)
+                if self.ascii:
+                    ends = np.cumsum(sizes)
+                    self.frames_damaged += len(np.unique(np.searchsorted(ends, hit,
+                                                                         side='right')))
+                else:
+                    self.frames_damaged += len(np.unique(hit // FRAME_SIZE))
+                data = buf.tobytes()
+        return data
+
+
+class Pty:
+    """
+    One plug-in of the device: a pty pair in raw mode, plus the optional symlink.
+
+    :param link: symlink path or None.
+    """
+
+    def __init__(self, link):
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        os.set_blocking(self.master, False)
+        self.path = os.ttyname(self.slave)
+        self.link = link
+        if link:
+            tmp = f'{link}.tmp{os.getpid()}'
+            try:
+                os.unlink(tmp)
+            except FileNotFoundError:
+                pass
+            os.symlink(self.path, tmp)
+            os.replace(tmp, link)
+
+    def write(self, data):
+        """Write what the pty takes; return the number of bytes dropped (buffer full)."""
+        done = 0
+        while done < len(data):
+            try:
+                n = os.write(self.master, data[done:])
+            except BlockingIOError:
+                break
+            except OSError as err:
+                if err.errno in (errno.EAGAIN, errno.EIO):
+                    break
+                raise
+            if n <= 0:
+                break
+            done += n
+        return len(data) - done
+
+    def close(self):
+        """Unplug: remove the link, close both ends."""
+        if self.link:
+            try:
+                if os.path.islink(self.link) and os.readlink(self.link) == self.path:
+                    os.unlink(self.link)
+            except OSError:
+                pass
+        for fd in (self.master, self.slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
+class _Flags:
+    stop = False
+    unplug = False
+
+
+def run(args):
+    """
+    Run the virtual device until SIGINT/SIGTERM (or ``--duration``).
+
+    :param args: argparse namespace with the options of :func:`add_arguments`.
+    :return: exit status (0, or 2 on bad input with a one-line reason on stderr).
+    """
+    try:
+        if args.count is not None and args.count < 1:
+            raise DeviceError(f'--count must be >= 1, got {args.count}')
+        sensor = VirtualSensor(args)
+        if args.link and os.path.isdir(args.link):
+            raise DeviceError(f'--link {args.link} is a directory')
+        if args.link and not os.path.isdir(os.path.dirname(os.path.abspath(args.link))):
+            raise DeviceError(f'--link {args.link}: the folder does not exist')
+        if args.truth_out:
+            _write_truth(args.truth_out, sensor.truth())
+    except DeviceError as err:
+        print(f'simulate-device: {err}', file=sys.stderr)
+        return 2
+
+    flags = _Flags()
+
+    def on_stop(signum, frame):
+        flags.stop = True
+
+    def on_unplug(signum, frame):
+        flags.unplug = True
+
+    old = {sig: signal.signal(sig, handler) for sig, handler in
+           ((signal.SIGINT, on_stop), (signal.SIGTERM, on_stop), (signal.SIGUSR1, on_unplug))}
+    wire = Wire(args, sensor.rng)
+    dropped = unplugs = 0
+    pty = None
+    try:
+        pty = Pty(args.link)
+        print(pty.path, flush=True)
+        start = time.monotonic()
+        sent = 0                                     # samples generated (sent or dropped)
+        batch_s = min(0.01, 2.0 / args.rate)
+        while not flags.stop:
+            now = time.monotonic()
+            if args.duration is not None and now - start >= args.duration:
+                break
+            if flags.unplug:
+                flags.unplug = False
+                unplugs += 1
+                pty.close()
+                pty = None
+                print(f'simulate-device: unplugged for {args.unplug_s:g} s', file=sys.stderr,
+                      flush=True)
+                until = time.monotonic() + args.unplug_s
+                while not flags.stop and time.monotonic() < until:
+                    time.sleep(0.01)
+                if flags.stop:
+                    break
+                now = time.monotonic()
+                missed = int((now - start) * args.rate) + 1 - sent
+                if missed > 0:                   # the sensor went on while unplugged
+                    sensor.counts(missed, sent / args.rate)
+                    dropped += missed
+                    sent += missed
+                pty = Pty(args.link)
+                print(pty.path, flush=True)
+            due = int((now - start) * args.rate) + 1
+            if due > sent:
+                n = due - sent
+                counts = sensor.counts(n, sent / args.rate)
+                if pty is None:
+                    dropped += n
+                else:
+                    data = wire.encode(counts, sent)
+                    lost = pty.write(data)
+                    if lost:
+                        dropped += int(math.ceil(lost * n / len(data)))
+                sent = due
+            next_due = start + sent / args.rate
+            time.sleep(max(batch_s, next_due - time.monotonic()))
+    finally:
+        if pty is not None:
+            pty.close()
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+    kind = 'lines' if args.ascii else 'frames'
+    print(f'simulate-device: {wire.frames} {kind} written, {wire.bytes_corrupted} bytes '
+          f'corrupted in {wire.frames_damaged} {kind}, about {dropped} {kind} dropped '
+          f'(unplugged or nobody reading), {unplugs} unplug(s)', file=sys.stderr, flush=True)
+    return 0
+
+
+def _write_truth(path, truth):
+    import yaml
+    tmp = f'{path}.tmp{os.getpid()}'
+    try:
+        with open(tmp, 'w') as f:
+            yaml.safe_dump(truth, f, sort_keys=False)
+        os.replace(tmp, path)
+    except OSError as err:
+        raise DeviceError(f'cannot write {path}: {err.strerror}')
+
+
+def main(argv=None):
+    """Command-line entry point (``python -m accel_calib_ros.device``)."""
+    parser = argparse.ArgumentParser(prog='python -m accel_calib_ros.device',
+                                     description=__doc__.strip().splitlines()[0])
+    add_arguments(parser)
+    return run(parser.parse_args(argv))
+
+
+if __name__ == '__main__':
+    sys.exit(main())
