@@ -182,6 +182,7 @@ def run_ros_demo(args):
         print(f'~/calibrate -> success={response.success}: {response.message}')
         if not response.success:
             return 1
+        client.spin(1.5)             # the correction node takes the new file up within 1 s
         client.raw.clear()
         client.corrected.clear()
         print(f'holding {args.fresh} fresh poses the calibration never saw...')
