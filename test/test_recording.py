@@ -26,7 +26,8 @@ def make_samples(n=200, temp=True, gyro=True, t0=0.0, seed=0):
 
 
 def assert_same(a, b, rtol=1e-8, atol=1e-9):
-    """Assert two Samples match (to the CSV's printed precision by default).
+    """
+    Assert two Samples match (to the CSV's printed precision by default).
 
     Times agree to 1 µs: float64 seconds near 1.7e9 (epoch stamps) resolve 0.24 µs.
     """

@@ -213,7 +213,7 @@ class OnlineStaticDetector:
 
     @property
     def noise_floor(self):
-        """Current noise floor estimate, m/s²."""
+        """Return the current noise floor estimate, m/s²."""
         return max(min(min(self._floors), self._block_min), self.min_floor)
 
     def _std(self):

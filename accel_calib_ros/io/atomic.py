@@ -1,4 +1,5 @@
-"""Atomic file replacement: a reader sees the old file or the new one, never half of one.
+"""
+Atomic file replacement: a reader sees the old file or the new one, never half of one.
 
 Every writer here follows the same recipe: create a temporary file in the target's own
 directory (so the final rename never crosses a file system), write it, flush it, fsync it,

@@ -1,4 +1,5 @@
-"""Read and write recordings: the spec CSV and rosbag2 (MCAP or SQLite 3) bags.
+"""
+Read and write recordings: the spec CSV and rosbag2 (MCAP or SQLite 3) bags.
 
 ``load_samples`` accepts
 
