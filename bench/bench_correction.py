@@ -1,4 +1,5 @@
-"""Benchmark: the accel_correction node against a bare rclpy relay, side by side.
+"""
+Benchmark: the accel_correction node against a bare rclpy relay, side by side.
 
 One publisher process sends ``sensor_msgs/Imu`` on ``imu/data_raw`` at ``--rate`` Hz
 (header stamp = publish time). Two consumers run as separate processes on the same

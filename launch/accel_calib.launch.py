@@ -1,0 +1,57 @@
+"""
+Start the MPU9250 driver, the calibration node and the correction node.
+
+Usage::
+
+    ros2 launch accel_calib_ros accel_calib.launch.py port:=/dev/ttyACM0
+    ros2 launch accel_calib_ros accel_calib.launch.py calibration_file:=/data/imu.yaml
+
+Each node reads its parameter file from this package's ``config/`` directory; the
+``port`` and ``calibration_file`` arguments override the values there. Then hold the
+sensor still in varied orientations (watch ``/accel_calibration/status``), call
+``/accel_calibration/calibrate`` and read the corrected stream on ``imu/corrected``.
+"""
+
+import os
+
+from ament_index_python.packages import get_package_share_directory
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument
+from launch.conditions import IfCondition
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+PACKAGE = 'accel_calib_ros'
+
+
+def generate_launch_description():
+    """Build the launch description (no side effects at import time)."""
+    config = os.path.join(get_package_share_directory(PACKAGE), 'config')
+    port = LaunchConfiguration('port')
+    calibration_file = LaunchConfiguration('calibration_file')
+    method = LaunchConfiguration('method')
+    default_file = os.path.join(
+        os.environ.get('ROS_HOME', os.path.join(os.path.expanduser('~'), '.ros')),
+        PACKAGE, 'calibration.yaml')
+    return LaunchDescription([
+        DeclareLaunchArgument('port', default_value='/dev/ttyACM0',
+                              description='serial port of the MPU9250 microcontroller'),
+        DeclareLaunchArgument('calibration_file', default_value=default_file,
+                              description='calibration YAML written and applied'),
+        DeclareLaunchArgument('method', default_value='ml',
+                              description='calibration solver: ml, gn or ml-bc'),
+        DeclareLaunchArgument('calibrate', default_value='true',
+                              description='start the accel_calibration node'),
+        Node(package=PACKAGE, executable='mpu9250_driver', name='mpu9250_driver',
+             output='screen', emulate_tty=True,
+             parameters=[os.path.join(config, 'driver.yaml'), {'port': port}]),
+        Node(package=PACKAGE, executable='accel_calibration', name='accel_calibration',
+             output='screen', emulate_tty=True,
+             condition=IfCondition(LaunchConfiguration('calibrate')),
+             parameters=[os.path.join(config, 'calibration.yaml'),
+                         {'calibration_file': calibration_file, 'method': method}]),
+        Node(package=PACKAGE, executable='accel_correction', name='accel_correction',
+             output='screen', emulate_tty=True,
+             parameters=[os.path.join(config, 'correction.yaml'),
+                         {'calibration_file': calibration_file}]),
+    ])

@@ -1,0 +1,329 @@
+"""
+The accel_calibration node as a subprocess, on real rclpy over DDS.
+
+(a) the whole chain: virtual MPU9250 on a pty -> driver -> calibration node ->
+``~/calibrate`` -> file -> correction node, checked against the simulated truth at
+poses the calibration never saw; (b) a refusal leaves the file byte-for-byte alone;
+(c) ``~/reset`` forgets the windows; (d) a bad parameter exits with status 2.
+"""
+
+import json
+import os
+import re
+import subprocess
+import sys
+import time
+
+from accel_calib_ros.core.calibration import Calibration
+from accel_calib_ros.core.simulate import mpu9250_like, simulate_session, simulate_window_means
+from accel_calib_ros.nodes.calibration import CalibrationNode
+import numpy as np
+import pytest
+import rclpy
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from ros_helpers import Collector, Processes, stop_node
+from sensor_msgs.msg import Imu, Temperature
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+import yaml
+
+pytestmark = pytest.mark.ros
+
+CALIBRATION = 'accel_calib_ros.nodes.calibration'
+CORRECTION = 'accel_calib_ros.nodes.correction'
+DRIVER = 'accel_calib_ros.nodes.driver'
+
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+RELIABLE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+
+
+class Client(Collector):
+    """Collector plus the calibration node's status, its services and a raw publisher."""
+
+    def __init__(self):
+        super().__init__({'imu/data_raw': Imu, 'imu/corrected': Imu}, RELIABLE, 'test_peer')
+        self.status = {}
+        self.node.create_subscription(String, 'accel_calibration/status', self._on_status,
+                                      LATCHED)
+        self.calibrate = self.node.create_client(Trigger, 'accel_calibration/calibrate')
+        self.reset = self.node.create_client(Trigger, 'accel_calibration/reset')
+        self.imu_pub = self.node.create_publisher(Imu, 'imu/data_raw', RELIABLE)
+        self.temp_pub = self.node.create_publisher(Temperature, 'imu/temperature', RELIABLE)
+
+    def _on_status(self, msg):
+        self.status = json.loads(msg.data)
+
+    def wait(self, condition, timeout, what):
+        """Process callbacks until ``condition()``; fail naming ``what`` after ``timeout``."""
+        assert self.spin_until(condition, timeout), f'timed out waiting for {what}'
+
+    def call(self, client, timeout=30.0):
+        """Call a Trigger service and return its response."""
+        self.wait(client.service_is_ready, 15.0, f'service {client.srv_name}')
+        future = client.call_async(Trigger.Request())
+        self.executor.spin_until_future_complete(future, timeout_sec=timeout)
+        assert future.done(), f'{client.srv_name} did not answer within {timeout} s'
+        return future.result()
+
+    def publish_session(self, accel, stamps, temps, pace_hz=2000.0):
+        """Publish raw samples with the given stamps, faster than real time."""
+        self.wait(lambda: self.imu_pub.get_subscription_count() > 1, 15.0,
+                  'the calibration node to subscribe')
+        self.spin(0.5)          # discovery is not symmetric: let the other side match too
+        t0 = time.monotonic()
+        for i, (a, t, temp) in enumerate(zip(accel, stamps, temps)):
+            if i % 20 == 0:
+                self.temp_pub.publish(Temperature(temperature=float(temp)))
+            m = Imu()
+            m.header.stamp.sec, m.header.stamp.nanosec = int(t), int(round((t % 1) * 1e9))
+            m.header.frame_id = 'imu_link'
+            m.orientation_covariance[0] = -1.0
+            m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z = \
+                (float(v) for v in a)
+            self.imu_pub.publish(m)
+            while time.monotonic() < t0 + i / pace_hz:
+                self.executor.spin_once(timeout_sec=0.0)
+
+
+@pytest.fixture
+def procs(tmp_path):
+    """Start nodes and devices; stop them all afterwards, nodes must exit with 0."""
+    p = Processes(tmp_path)
+    yield p
+    nodes = [proc for proc in p.procs if proc.args[2].startswith('accel_calib_ros.nodes')]
+    codes = {}
+    for proc in reversed(p.procs):
+        code, log = stop_node(proc)
+        print(log)
+        codes[proc.args[2]] = code
+    assert all(codes[proc.args[2]] == 0 for proc in nodes), codes
+
+
+@pytest.fixture
+def client():
+    c = Client()
+    yield c
+    c.close()
+
+
+def simulated_poses(n_poses, seed):
+    """(accel (N, 3), stamps (N,), temps (N,)) of a short simulated session at 200 Hz."""
+    rng = np.random.default_rng(seed)
+    sensor = mpu9250_like(rng, rate_hz=200.0)
+    dirs = np.eye(3)[:n_poses]
+    s = simulate_session(sensor, dirs, rng, hold_s=2.0, move_s=0.5, rate_hz=200.0,
+                         lead_s=0.5)
+    return s.samples.accel, 1000.0 + s.samples.t, s.samples.temp
+
+
+def test_bad_parameter_exits_with_status_2():
+    for bad in ('method:=foo', 'gravity:=abc', 'max_windows:=3'):
+        proc = subprocess.run(
+            [sys.executable, '-m', CALIBRATION, '--ros-args', '-p',
+             bad], capture_output=True, text=True, timeout=30)
+        assert proc.returncode == 2, proc.stderr
+        name = bad.split(':=')[0]
+        assert f"parameter '{name}'" in proc.stderr
+        assert 'Traceback' not in proc.stderr
+
+
+def test_refusal_leaves_the_file_untouched_and_reset_clears(tmp_path, procs, client):
+    path = tmp_path / 'calibration.yaml'
+    old = Calibration(T=np.diag([1.01, 0.99, 1.0]), bias=[0.1, -0.2, 0.3])
+    old.save(path)
+    before = path.read_bytes()
+    mtime = os.stat(path).st_mtime_ns
+    accel, stamps, temps = simulated_poses(3, seed=3)
+    procs.node(CALIBRATION, {'calibration_file': str(path)})
+    client.publish_session(accel, stamps, temps)
+    client.wait(lambda: client.status.get('windows', 0) >= 2, 15.0, 'windows')
+    response = client.call(client.calibrate)
+    assert not response.success
+    assert 'refused' in response.message and 'orientations' in response.message
+    assert path.read_bytes() == before
+    assert os.stat(path).st_mtime_ns == mtime
+    client.wait(lambda: client.status.get('last_calibration'), 5.0, 'status after calibrate')
+    assert client.status['windows'] == 3
+    assert client.status['last_calibration']['success'] is False
+    assert client.status['coverage']['distinct_directions'] == 3
+    assert client.status['next_pose'].endswith(' up')
+
+    response = client.call(client.reset)
+    assert response.success
+    client.wait(lambda: client.status.get('windows') == 0, 5.0, 'status after reset')
+    response = client.call(client.calibrate)
+    assert not response.success and 'no static windows' in response.message
+    assert path.read_bytes() == before
+
+
+def truth_calibration(path):
+    """Read the simulated sensor's own T and bias from the device's --truth-out file."""
+    with open(path, encoding='utf-8') as f:
+        truth = yaml.safe_load(f)
+    return Calibration(T=np.asarray(truth['T'], float),
+                       bias=np.asarray(truth['bias_m_s2'], float))
+
+
+CAL_POSES, FRESH_POSES, HOLD_S, MOVE_S = 14, 3, 2.0, 0.7
+
+
+def test_full_chain_device_to_corrected(tmp_path, procs, client):
+    link, truth_path = str(tmp_path / 'imu0'), str(tmp_path / 'truth.yaml')
+    cal_path = tmp_path / 'calibration.yaml'
+    # The nodes first, so that the device's first pose is not spent waiting for them.
+    procs.node(CALIBRATION, {'calibration_file': str(cal_path)})
+    procs.node(CORRECTION, {'calibration_file': str(cal_path)})
+    client.wait(lambda: client.calibrate.service_is_ready(), 15.0, 'the calibration node')
+    procs.device(['--link', link, '--poses', 'random', '--count', CAL_POSES + FRESH_POSES,
+                  '--hold', HOLD_S, '--move', MOVE_S, '--rate', 200, '--seed', 11,
+                  '--truth-out', truth_path, '--corrupt', 0.02])
+    procs.node(DRIVER, {'port': link})
+    truth = truth_calibration(truth_path)
+    client.wait(lambda: client.status.get('windows', 0) >= CAL_POSES - 1,
+                CAL_POSES * (HOLD_S + MOVE_S) + 30, 'calibration windows')
+    response = client.call(client.calibrate)
+    print(response.message)
+    assert response.success, response.message
+    assert str(cal_path) in response.message
+    cal = Calibration.load(cal_path)
+    assert cal.observations >= CAL_POSES - 1
+
+    # The parameters against the truth, over directions never held.
+    rng = np.random.default_rng(0)
+    fresh = rng.standard_normal((500, 3))
+    fresh *= 9.80665 / np.linalg.norm(fresh, axis=1, keepdims=True)
+    err = np.linalg.norm(cal.correct(truth.distort(fresh)) - fresh, axis=1)
+    print(f'fit vs truth over 500 fresh directions: max {err.max():.4f} m/s2')
+    assert err.max() < 0.05
+
+    # The live stream while the device holds the poses the calibration never saw.
+    client.spin(0.6)                    # the correction node reloads within 0.25 s
+    client.clear()
+    client.spin(FRESH_POSES * (HOLD_S + MOVE_S))
+
+    def by_stamp(topic):
+        return {(m.header.stamp.sec, m.header.stamp.nanosec):
+                (m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z)
+                for m in client.messages[topic]}
+    raw, corrected = by_stamp('imu/data_raw'), by_stamp('imu/corrected')
+    keys = sorted(set(raw) & set(corrected))
+    assert len(keys) > 200, f'only {len(keys)} corrected samples arrived'
+    raw = np.array([raw[k] for k in keys])
+    corrected = np.array([corrected[k] for k in keys])
+    live = np.linalg.norm(corrected - truth.correct(raw), axis=1)
+    raw_err = np.linalg.norm(raw - truth.correct(raw), axis=1)
+    print(f'live corrected vs truth over {len(keys)} samples: max {live.max():.4f}, '
+          f'RMS {np.sqrt(np.mean(live ** 2)):.4f} m/s2 (raw RMS '
+          f'{np.sqrt(np.mean(raw_err ** 2)):.4f})')
+    assert live.max() < 0.05
+
+
+@pytest.fixture
+def node_in_process(tmp_path):
+    """Make CalibrationNodes in their own context (never spun): the decision logic."""
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    made = []
+
+    def make(**params):
+        params.setdefault('calibration_file', str(tmp_path / 'calibration.yaml'))
+        made.append(CalibrationNode(context=context, parameter_overrides=[
+            Parameter(k, value=v) for k, v in params.items()]))
+        return made[-1]
+    yield make
+    for node in made:
+        node.destroy_node()
+    rclpy.try_shutdown(context=context)
+
+
+def inject_windows(node, means, temps, count=300, scatter=0.03):
+    """Hand the node finished windows as its detector would."""
+    node.rate_hz = 200.0
+    for k, (mean, temp) in enumerate(zip(means, temps)):
+        node.windows.append({'mean': np.asarray(mean, float), 'scatter': np.full(3, scatter),
+                             'count': count, 't_mid': float(k), 't_start': k - 0.7,
+                             't_stop': k + 0.7, 'temp': float(temp)})
+
+
+def directions(n, seed):
+    """Return ``n`` random unit vectors."""
+    rng = np.random.default_rng(seed)
+    d = rng.standard_normal((n, 3))
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def test_refuses_moving_poses_and_non_physical_fits(node_in_process, tmp_path):
+    rng = np.random.default_rng(5)
+    sensor = mpu9250_like(rng, rate_hz=200.0)
+    u = directions(20, 6)
+    path = tmp_path / 'calibration.yaml'
+    # Window means far noisier than their scatter says: the sensor moved.
+    node = node_in_process()
+    means = simulate_window_means(sensor, u, 300, rng) + rng.normal(0, 0.2, (20, 3))
+    inject_windows(node, means, np.full(20, 25.0))
+    response = node.on_calibrate(Trigger.Request(), Trigger.Response())
+    assert not response.success and 'residual' in response.message, response.message
+    assert not path.exists()
+    # Readings in the wrong unit (g instead of m/s2 with a bias of 0.5 g): not physical.
+    node = node_in_process(gravity=9.80665)
+    inject_windows(node, 0.6 * 9.80665 * u + 5.0, np.full(20, 25.0), scatter=0.01)
+    response = node.on_calibrate(Trigger.Request(), Trigger.Response())
+    assert not response.success and 'not physical' in response.message, response.message
+    assert not path.exists()
+
+
+def test_thermal_tables_when_two_bands_are_filled(node_in_process, tmp_path):
+    rng = np.random.default_rng(7)
+    sensor = mpu9250_like(rng, rate_hz=200.0, effects=('temperature_bias',))
+    u = directions(40, 8)
+    temps = np.r_[np.full(20, 22.0), np.full(20, 37.0)]
+    means = simulate_window_means(sensor, u, 300, rng, temp=temps)
+    node = node_in_process()
+    inject_windows(node, means, temps)
+    response = node.on_calibrate(Trigger.Request(), Trigger.Response())
+    assert response.success, response.message
+    assert 'thermal bands 2' in response.message
+    cal = Calibration.load(tmp_path / 'calibration.yaml')
+    fresh = 9.80665 * directions(200, 9)
+    for temp in (22.0, 37.0):
+        err = cal.correct(sensor.distort(fresh, np.full(200, temp)), np.full(200, temp))
+        assert np.abs(err - fresh).max() < 0.05
+    off = node_in_process(thermal='off')
+    inject_windows(off, means, temps)
+    response = off.on_calibrate(Trigger.Request(), Trigger.Response())
+    assert not response.success and 'thermal:=auto' in response.message, response.message
+
+
+def test_config_files_match_the_declared_parameters():
+    from accel_calib_ros.nodes.correction import CorrectionNode
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        for cls, name in ((CalibrationNode, 'calibration'), (CorrectionNode, 'correction')):
+            path = os.path.join(root, 'config', f'{name}.yaml')
+            with open(path, encoding='utf-8') as f:
+                (node_name, body), = yaml.safe_load(f).items()
+            node = cls(context=context, cli_args=['--ros-args', '--params-file', path])
+            try:
+                assert node.get_name() == node_name
+                for key, value in body['ros__parameters'].items():
+                    assert node.has_parameter(key), f'{name}.yaml: {key} is not a parameter'
+                    assert node.get_parameter(key).value == value
+                declared = set(node._parameters) - {'use_sim_time',
+                                                    'start_type_description_service'}
+                assert declared == set(body['ros__parameters']), f'{name}.yaml is incomplete'
+            finally:
+                node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
+    with open(os.path.join(root, 'accel_calib_ros', 'nodes', 'driver.py'),
+              encoding='utf-8') as f:
+        source = f.read()
+    with open(os.path.join(root, 'config', 'driver.yaml'), encoding='utf-8') as f:
+        driver = yaml.safe_load(f)['mpu9250_driver']['ros__parameters']
+    for key in driver:
+        assert re.search(rf"_declare\(\s*self,\s*'{key}'", source), \
+            f'driver.yaml: {key} is not a driver parameter'
