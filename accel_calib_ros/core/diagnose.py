@@ -1,5 +1,5 @@
 """
-Model-gap workflow: where do simulation and measurement disagree, and why?
+Model-gap workflow: where simulation and measurement disagree, and why.
 
 1. Fit the baseline model (``ml``: upper-triangular T + bias; ``gn``: diagonal T +
    bias) to the session's static windows.
@@ -83,7 +83,7 @@ class Model:
         return np.concatenate([head, bias])
 
     def true_accel(self, x, c):
-        """Invert the model for each window: true specific force (N, 3), m/s²."""
+        """Invert the model for each window: return the true specific force (N, 3), m/s²."""
         T, bias, params = self.split(x)
         a = np.linalg.solve(T, (c.readings - bias).T).T
         for _ in range(2):          # the effects are small: two fixed-point passes
@@ -93,7 +93,7 @@ class Model:
         return a
 
     def residuals(self, x, c):
-        """Normalised gravity-norm residuals (N,): (|a| - g) / noise along a."""
+        """Return (|a| - g) / noise along a for each window, shape (N,)."""
         a = self.true_accel(x, c)
         norm = np.linalg.norm(a, axis=1)
         # Reading noise mapped to the true frame, then taken along the normal a/|a|.
@@ -102,7 +102,7 @@ class Model:
         return (norm - c.gravity) / s
 
     def predict(self, x, directions, c):
-        """Noise-free readings (N, 3) for unit directions under conditions ``c``."""
+        """Return noise-free readings (N, 3) for unit directions under conditions ``c``."""
         T, bias, params = self.split(x)
         a = c.gravity * directions
         raw = a @ T.T + bias
@@ -166,7 +166,7 @@ class DiagnoseResult:
         return self.gap_after <= np.percentile(self.null_gaps, 95) * 1.05
 
     def summary(self):
-        """Return the JSON-ready machine summary (spec section 3)."""
+        """Return the JSON-ready machine summary of spec section 3."""
         return {
             'baseline': self.baseline, 'missing_effects': self.missing_effects,
             'gap_before': self.gap_before, 'gap_after': self.gap_after,
@@ -198,13 +198,17 @@ class DiagnoseResult:
 
 
 def _noise_inflation(samples, windows, blocks=8):
-    """Variance of a window mean over its white-noise value, pooled (>= 1), by batch means."""
+    """Return the variance of a window mean over its white-noise value (>= 1), by batch means."""
     ratios = []
     for a, b in zip(windows.start, windows.stop):
         n = (b - a) // blocks
         if n < 8:
             continue
-        x = samples.accel[a:a + n * blocks].reshape(blocks, n, 3)
+        x = samples.accel[a:a + n * blocks]
+        # A slow ramp inside a window (temperature) is the model's business, not noise.
+        ramp = np.linspace(-1.0, 1.0, len(x))[:, None]
+        x = x - ramp * (ramp * (x - x.mean(axis=0))).sum(axis=0) / (ramp ** 2).sum()
+        x = x.reshape(blocks, n, 3)
         var_sample = x.reshape(-1, 3).var(axis=0, ddof=1)
         var_block = x.mean(axis=1).var(axis=0, ddof=1) * n
         ok = var_sample > 0
@@ -226,7 +230,7 @@ def conditions_from_windows(windows, gravity, inflation=1.0):
 
 
 def _where(residuals, c, directions):
-    """Strongest correlations of the residuals with the session's variables."""
+    """Return the strongest correlations of the residuals with the session's variables."""
     candidates = {'temperature': c.temp, 'time': c.time}
     for i, axis in enumerate('xyz'):
         candidates[f'{axis} component of gravity'] = directions[:, i]
@@ -248,7 +252,7 @@ def _fit_model(baseline, effects, c, start):
 
 
 def _null_gaps(model, fit, c, rng, replicates):
-    """Gaps of the fitted model re-simulated under the session's own conditions."""
+    """Return the gaps of the fitted model re-simulated under the session's conditions."""
     a = model.true_accel(fit.x, c)
     directions = a / np.linalg.norm(a, axis=1, keepdims=True)
     clean = model.predict(fit.x, directions, c)
@@ -363,7 +367,7 @@ def diagnose_windows(windows, baseline='ml', gravity=9.80665, rng=None, replicat
 
 
 def model_start(baseline, cal):
-    """Parameter vector of the baseline model from a Calibration."""
+    """Return the parameter vector of the baseline model from a Calibration."""
     return Model(baseline, []).pack_baseline(cal.T, cal.bias)
 
 

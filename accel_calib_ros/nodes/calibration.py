@@ -15,7 +15,6 @@ A thin shell around :mod:`accel_calib_ros.core`:
 """
 
 from collections import deque
-import inspect
 import json
 import math
 import os
@@ -33,10 +32,11 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from ..core.calibration import calibrate, default_calibration_path
+from ..core.diagnose import diagnose_windows
 from ..core.errors import CalibrationError, InputError
 from ..core.ml import cramer_rao_bound, fit_ml
 from ..core.thermal import MIN_WINDOWS_PER_BAND
-from ..core.windows import distinct_directions, OnlineStaticDetector
+from ..core.windows import distinct_directions, OnlineStaticDetector, StaticWindows
 
 METHODS = ('ml', 'gn', 'ml-bc')
 THERMAL_MODES = ('auto', 'on', 'off')
@@ -567,31 +567,31 @@ class CalibrationNode(Node):
                    f'bias {np.round(cal.bias, 4).tolist()} m/s2, non-orthogonality '
                    f'{np.round(cal.nonorthogonality_deg, 3).tolist()} deg (xy, xz, yz), '
                    f'residual {cal.residual_rms:.4f} m/s2, thermal bands {bands}')
-        hint = self._diagnose_hint(means, weights, temps, noise)
+        hint = self._diagnose_hint()
         return msg + ('. ' + hint if hint else '')
 
-    def _diagnose_hint(self, means, weights, temps, noise):
-        """One sentence from core.diagnose when it names an effect the method lacks."""
-        try:
-            from ..core.diagnose import diagnose_windows
-        except ImportError:
-            return ''
+    def _diagnose_hint(self):
+        """Return one sentence when the model-gap check names an effect the method lacks."""
+        w = list(self.windows)
+        count = np.array([x['count'] for x in w], int)
+        windows = StaticWindows(
+            start=np.zeros(len(w), int), stop=count,
+            mean=np.array([x['mean'] for x in w]).reshape(-1, 3),
+            scatter=np.array([x['scatter'] for x in w]).reshape(-1, 3), count=count,
+            t_mid=np.array([x['t_mid'] for x in w], float),
+            temp=np.array([x['temp'] for x in w], float))
         baseline = 'gn' if self.params['method'] == 'gn' else 'ml'
-        offered = {'weights': weights, 'temps': temps, 'noise_std': noise,
-                   'gravity': self.params['gravity'], 'baseline': baseline}
         try:
-            names = list(inspect.signature(diagnose_windows).parameters)
-            report = diagnose_windows(means, **{k: v for k, v in offered.items()
-                                                if k in names[1:]})
-            missing = report.get('missing_effects') if isinstance(report, dict) \
-                else getattr(report, 'missing_effects', None)
-        except Exception as err:    # noqa: B902 - advice only, never fail the calibration
-            self.get_logger().debug(f'diagnose skipped: {err!r}')
+            report = diagnose_windows(windows, baseline, self.params['gravity'], replicates=0)
+        except (CalibrationError, ValueError, np.linalg.LinAlgError) as err:
+            self.get_logger().debug(f'model-gap check skipped: {err}')
             return ''
-        if not missing:
+        if not report.missing_effects:
             return ''
-        return (f'Note: the data show {", ".join(missing)}, which the {self.params["method"]} '
-                'model does not include.')
+        details = '; '.join(f'{step["effect"]} ({step["evidence"]["magnitude"]})'
+                            for step in report.steps)
+        return (f'Note: the data show {details}, which the {self.params["method"]} model '
+                f'does not include (gap {report.gap_before:.1f} -> {report.gap_after:.1f})')
 
 
 def main(args=None):

@@ -1,0 +1,109 @@
+"""
+Model-gap report: PNG plots a person looks at, and a short Markdown summary.
+
+``write_report(result, folder)`` writes, for a DiagnoseResult:
+
+- ``gap.png``: the gap after each step (1 = measurement and model agree);
+- ``residuals_step<k>.png``: the normalised residuals of the model before step k
+  (and of the final model) against temperature, time and orientation;
+- ``report.md``: what was found, the evidence, the plots.
+
+Every file is written atomically.
+"""
+
+import os
+
+import matplotlib
+import numpy as np
+
+from .io.atomic import atomic_path, atomic_write_text
+
+matplotlib.use('Agg')
+import matplotlib.pyplot as plt  # noqa: E402, I100
+
+
+def _residual_figure(path, fit, model_label, c, directions):
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8), sharey=True)
+    r = fit.residuals
+    panels = [('temperature - mean, °C', c.temp), ('time - mean, s', c.time),
+              ('z component of gravity direction', directions[:, 2])]
+    for ax, (label, x) in zip(axes, panels):
+        colour = np.argmax(np.abs(directions), axis=1)
+        ax.scatter(x, r, c=colour, cmap='viridis', s=14, vmin=0, vmax=2)
+        ax.axhline(0, color='k', lw=0.8)
+        for band in (-2, 2):
+            ax.axhline(band, color='grey', lw=0.6, ls='--')
+        ax.set_xlabel(label)
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel('(|a| - g) / noise')
+    fig.suptitle(f'{model_label}: gap {fit.gap:.2f}   (colour: axis nearest vertical, x/y/z)')
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90)
+    plt.close(fig)
+
+
+def write_report(result, folder):
+    """Write the plots and report.md of a DiagnoseResult into ``folder`` (created)."""
+    from .core.diagnose import Model
+    os.makedirs(folder, exist_ok=True)
+    c = result.conditions
+    labels = [result.baseline] + [f'+ {name}' for name in result.missing_effects]
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    gaps = [fit.gap for fit in result.fits]
+    ax.bar(range(len(gaps)), gaps, color=['tab:red'] + ['tab:blue'] * (len(gaps) - 1))
+    ax.axhline(1.0, color='k', ls='--', lw=0.8)
+    ax.set_xticks(range(len(gaps)), labels, rotation=20)
+    ax.set_ylabel('gap = sqrt(chi²/dof)')
+    ax.set_yscale('log')
+    fig.tight_layout()
+    with atomic_path(os.path.join(folder, 'gap.png')) as tmp:
+        fig.savefig(tmp, dpi=90)
+    plt.close(fig)
+
+    images = []
+    for k, fit in enumerate(result.fits):
+        model = Model(result.baseline, fit.effects)
+        a = model.true_accel(fit.x, c)
+        directions = a / np.linalg.norm(a, axis=1, keepdims=True)
+        name = f'residuals_step{k}.png'
+        label = ' '.join(labels[:k + 1]) if k else f'baseline {result.baseline}'
+        _residual_figure(os.path.join(folder, name), fit, label, c, directions)
+        images.append((label, name))
+
+    lines = ['# Model-gap report', '',
+             f'Baseline **{result.baseline}**, {result.windows} static windows. '
+             f'Gap {result.gap_before:.2f} → {result.gap_after:.2f} '
+             '(sqrt of χ²/dof of the gravity-norm residuals, each divided by the noise of its '
+             'window measured from the data; about 1 when model and measurement agree).', '']
+    if result.steps:
+        lines += ['| step | effect | gap before | gap after | F | p | size |',
+                  '|---|---|---|---|---|---|---|']
+        for k, step in enumerate(result.steps, 1):
+            ev = step['evidence']
+            lines.append(f'| {k} | {step["effect"]} | {step["gap_before"]:.2f} | '
+                         f'{step["gap_after"]:.2f} | {ev["F"]:.1f} | {ev["p"]:.1e} | '
+                         f'{ev["magnitude"]} |')
+        lines.append('')
+        for step in result.steps:
+            where = ', '.join(f'{w["variable"]} (r = {w["r"]:+.2f})' for w in step['where'])
+            lines.append(f'- **{step["effect"]}**: {step["evidence"]["description"]}. '
+                         f'Before adding it the residuals followed {where}.')
+    else:
+        lines.append('No missing effect is supported by this session.')
+    for note in result.ambiguities:
+        lines.append(f'- Note: {note}')
+    for name, reason in result.skipped.items():
+        lines.append(f'- Not testable with this session: {name} ({reason}).')
+    if result.null_gaps:
+        lines.append('')
+        lines.append("Re-simulating the final model under this session's poses, "
+                     f'temperatures and window lengths {len(result.null_gaps)} times gives '
+                     f'gaps up to {np.percentile(result.null_gaps, 95):.2f} (95th percentile): '
+                     f'the measured {result.gap_after:.2f} is '
+                     f'{"explained" if result.explained else "NOT explained"} by noise.')
+    lines += ['', '![gap per step](gap.png)', '']
+    for label, name in images:
+        lines += [f'### Residuals: {label}', '', f'![{label}]({name})', '']
+    atomic_write_text(os.path.join(folder, 'report.md'), '\n'.join(lines))
+    return os.path.join(folder, 'report.md')
