@@ -265,3 +265,55 @@ def simulate_window_means(sensor, directions, n_samples, rng, gravity=G0, temp=N
     raw = sensor.distort(gravity * directions, temp, t)
     n = np.broadcast_to(np.asarray(n_samples, float), (len(directions),))
     return raw + rng.standard_normal(raw.shape) * sensor.noise_std / np.sqrt(n)[:, None]
+
+
+DATASHEET = {
+    'nonorthogonality': 0.02,              # cross-axis sensitivity, fraction
+    'scale_nonlinearity': 0.005,           # fraction of reading at 1 g
+    'temperature_bias': 1.5e-3 * G0,       # m/s² per °C
+    'temperature_scale': 2.6e-4,           # 1 per °C
+    'bias_drift': 1e-3 * G0 / 60.0,        # m/s² per s (1 mg/min; not in the datasheet)
+}
+"""MPU-9250 datasheet magnitude of each effect of the model-gap library."""
+
+
+def with_datasheet_effect(sensor, effect, rng, scale=1.0):
+    """
+    Return a copy of ``sensor`` with one effect at ``scale`` x its datasheet size.
+
+    The three axes get random signs and sizes of (1, 0.75, 0.5) x the magnitude. For
+    ``nonorthogonality`` T becomes diagonal plus the hidden off-diagonal terms, so a
+    6-parameter (gn) baseline lacks exactly that effect.
+    """
+    size = scale * DATASHEET[effect] * rng.choice([-1.0, 1.0], 3) * np.array([1.0, 0.75, 0.5])
+    out = replace(sensor, T=sensor.T.copy())
+    if effect == 'nonorthogonality':
+        out.T = np.diag(np.diag(sensor.T))
+        out.T[np.triu_indices(3, 1)] = size
+    else:
+        attr = {'scale_nonlinearity': 'nonlinearity', 'temperature_bias': 'bias_tempco',
+                'temperature_scale': 'scale_tempco', 'bias_drift': 'bias_drift'}[effect]
+        setattr(out, attr, size)
+    return out
+
+
+def simulate_static_windows(sensor, directions, rng, hold_s=3.5, count=250, gravity=G0,
+                            temperature=25.0):
+    """
+    Simulate the static windows of a session directly (no sample stream): fast.
+
+    :param directions: (N, 3) unit gravity directions, one window each, held in turn.
+    :param hold_s: time per pose, s (window mid times are (k + 0.5) x hold_s).
+    :param count: samples averaged per window.
+    :param temperature: °C, a constant or a callable of time in seconds.
+    :returns: StaticWindows with the sensor's noise as the within-window scatter.
+    """
+    from .windows import StaticWindows
+    n = len(directions)
+    t = (np.arange(n) + 0.5) * hold_s
+    temp = np.asarray(temperature(t), float) if callable(temperature) \
+        else np.full(n, float(temperature))
+    counts = np.full(n, int(count))
+    mean = simulate_window_means(sensor, directions, counts, rng, gravity, temp, t)
+    return StaticWindows(np.zeros(n, int), counts, mean, np.tile(sensor.noise_std, (n, 1)),
+                         counts, t, temp)
