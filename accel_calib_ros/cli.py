@@ -130,7 +130,7 @@ def build_parser():
 # -- commands ----------------------------------------------------------------------------
 
 def _load(args):
-    from .io.recording import load_samples
+    from .dataio.recording import load_samples
     return load_samples(args.data, imu_topic=args.imu_topic, temp_topic=args.temp_topic)
 
 
@@ -201,7 +201,7 @@ def cmd_fit(args, out):
 
 
 def cmd_apply(args, out):
-    from .io.recording import write_samples_csv
+    from .dataio.recording import write_samples_csv
     cal = Calibration.load(args.calibration)
     samples = _load(args)
     if cal.thermal is not None and cal.thermal.usable and samples.temp is None:
@@ -224,7 +224,7 @@ def cmd_apply(args, out):
 
 def cmd_simulate(args, out):
     from .core import simulate as sim
-    from .io.recording import write_bag, write_samples_csv
+    from .dataio.recording import write_bag, write_samples_csv
     rng = np.random.default_rng(args.seed)
     effects = [e.strip() for e in args.effects.split(',') if e.strip()]
     known = ('scale_nonlinearity', 'temperature_bias', 'temperature_scale', 'bias_drift',
@@ -261,7 +261,7 @@ def cmd_simulate(args, out):
     truth = sensor_to_dict(sensor, args.gravity)
     if args.truth:
         import yaml
-        from .io.atomic import atomic_write_text
+        from .dataio.atomic import atomic_write_text
         atomic_write_text(args.truth, yaml.safe_dump(truth, sort_keys=False))
     summary = {'output': args.output, 'samples': len(session.samples), 'poses': len(directions),
                'seconds': float(session.samples.t[-1]), 'truth': truth}

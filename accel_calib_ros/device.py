@@ -22,8 +22,8 @@ import numpy as np
 
 from .core.simulate import (face_directions, G0, mpu9250_like, random_directions,
                             simulate_session)
-from .io.mpu9250_frame import (ACCEL_LSB_PER_G, Converter, encode_ascii_line, encode_frame,
-                               FRAME_SIZE, GYRO_LSB_PER_DPS)
+from .dataio.mpu9250_frame import (ACCEL_LSB_PER_G, Converter, encode_ascii_line, encode_frame,
+                                   FRAME_SIZE, GYRO_LSB_PER_DPS)
 
 CHUNK_S = 10.0
 """Seconds of samples simulated at a time once the script has ended."""

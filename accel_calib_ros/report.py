@@ -16,7 +16,7 @@ import os
 import matplotlib
 import numpy as np
 
-from .io.atomic import atomic_path, atomic_write_text
+from .dataio.atomic import atomic_path, atomic_write_text
 
 matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402, I100

@@ -14,9 +14,9 @@ import argparse
 import sys
 import time
 
-from accel_calib_ros.io.mpu9250_frame import (AsciiLineParser, ClockMapper, Converter,
-                                              encode_ascii_line, encode_frame, FRAME_SIZE,
-                                              FrameParser, RawFrame)
+from accel_calib_ros.dataio.mpu9250_frame import (AsciiLineParser, ClockMapper, Converter,
+                                                  encode_ascii_line, encode_frame, FRAME_SIZE,
+                                                  FrameParser, RawFrame)
 import numpy as np
 
 

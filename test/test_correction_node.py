@@ -14,7 +14,7 @@ import time
 
 from accel_calib_ros.core.calibration import Calibration
 from accel_calib_ros.core.thermal import ThermalBand, ThermalTable
-from accel_calib_ros.io.atomic import atomic_write_text
+from accel_calib_ros.dataio.atomic import atomic_write_text
 from accel_calib_ros.nodes.correction import CorrectionNode, UNCALIBRATED_STD
 import numpy as np
 import pytest

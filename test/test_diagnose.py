@@ -85,7 +85,7 @@ def test_end_to_end_on_samples_and_cli(tmp_path, capsys):
     result = diagnose(session.samples, 'ml', replicates=5)
     assert result.missing_effects == ['scale_nonlinearity'], result.text()
 
-    from accel_calib_ros.io.recording import write_samples_csv
+    from accel_calib_ros.dataio.recording import write_samples_csv
     path = tmp_path / 'session.csv'
     write_samples_csv(path, session.samples)
     report = tmp_path / 'report'

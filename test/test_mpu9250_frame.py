@@ -3,10 +3,10 @@
 import math
 import struct
 
-from accel_calib_ros.io.mpu9250_frame import (accel_scale, AsciiLineParser, ClockMapper,
-                                              Converter, crc8, encode_ascii_line,
-                                              encode_frame, FRAME_SIZE, FrameParser,
-                                              gyro_scale, RawFrame, temp_c)
+from accel_calib_ros.dataio.mpu9250_frame import (accel_scale, AsciiLineParser, ClockMapper,
+                                                  Converter, crc8, encode_ascii_line,
+                                                  encode_frame, FRAME_SIZE, FrameParser,
+                                                  gyro_scale, RawFrame, temp_c)
 import numpy as np
 import pytest
 

@@ -5,9 +5,9 @@ import time
 
 from accel_calib_ros.core.errors import InputError
 from accel_calib_ros.core.samples import Samples
-from accel_calib_ros.io import atomic, recording
-from accel_calib_ros.io.atomic import atomic_path, atomic_write_bytes, atomic_write_text
-from accel_calib_ros.io.recording import load_samples, write_bag, write_samples_csv
+from accel_calib_ros.dataio import atomic, recording
+from accel_calib_ros.dataio.atomic import atomic_path, atomic_write_bytes, atomic_write_text
+from accel_calib_ros.dataio.recording import load_samples, write_bag, write_samples_csv
 import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer

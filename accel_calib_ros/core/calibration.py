@@ -203,7 +203,7 @@ class Calibration:
 
     def save(self, path):
         """Write the calibration atomically (a reader never sees a half-written file)."""
-        from ..io.atomic import atomic_write_text
+        from ..dataio.atomic import atomic_write_text
         atomic_write_text(path, self.to_yaml())
 
     @classmethod

@@ -9,7 +9,7 @@ reliable with depth 100. A lost port is logged once per outage and reopened with
 exponential back-off; ``/diagnostics`` reports the link at 1 Hz.
 
 Stamps (``timestamp``): ``device`` maps the microcontroller µs clock onto host time
-(:class:`~accel_calib_ros.io.mpu9250_frame.ClockMapper`: the transport jitter does not
+(:class:`~accel_calib_ros.dataio.mpu9250_frame.ClockMapper`: the transport jitter does not
 reach the stamps); ``host`` uses the receive time, spread back over a batch by the
 device clock.
 """
@@ -29,8 +29,8 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, Temperature
 import serial
 
-from ..io.mpu9250_frame import (ACCEL_LSB_PER_G, AsciiLineParser, ClockMapper, Converter,
-                                FrameParser, GYRO_LSB_PER_DPS)
+from ..dataio.mpu9250_frame import (ACCEL_LSB_PER_G, AsciiLineParser, ClockMapper, Converter,
+                                    FrameParser, GYRO_LSB_PER_DPS)
 
 NODE_NAME = 'mpu9250_driver'
 QUEUE_DEPTH = 100
