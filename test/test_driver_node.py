@@ -7,6 +7,7 @@ the driver reads it; an in-process Collector checks what reaches the graph.
 
 import math
 import signal
+import statistics
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -83,7 +84,8 @@ def test_stream_reaches_the_graph(procs, collector, tmp_path):
     assert sum(t.temperature for t in temps) / len(temps) == pytest.approx(31.5, abs=0.1)
     stamps = [stamp_s(m) for m in imu]
     assert all(b > a for a, b in zip(stamps, stamps[1:]))
-    spacing = (stamps[-1] - stamps[0]) / (len(stamps) - 1)
+    # Median, not mean: a best-effort subscriber on a loaded machine may miss a few.
+    spacing = statistics.median(b - a for a, b in zip(stamps, stamps[1:]))
     assert spacing == pytest.approx(1 / 200.0, rel=0.02)
     assert abs(time.time() - stamps[-1]) < 1.0
     temp_stamps = {stamp_s(t) for t in collector.messages[TEMP]}
