@@ -11,10 +11,10 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
 setup: $(STAMP)
 
-$(STAMP): setup.py requirements-ros.txt requirements-dev.txt
+$(STAMP): setup.py requirements.txt requirements-ros.txt requirements-dev.txt
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -r requirements-ros.txt -r requirements-dev.txt
+	$(BIN)/pip install -q -r requirements.txt -r requirements-ros.txt -r requirements-dev.txt
 	$(BIN)/pip install -q -e .
 	touch $(STAMP)
 

@@ -17,8 +17,9 @@ setup(
         ('share/' + package_name + '/config', glob('config/*.yaml')),
     ],
     python_requires='>=3.10',
-    install_requires=['setuptools', 'numpy', 'scipy', 'pyserial', 'PyYAML', 'matplotlib',
-                      'rosbags'],
+    # Only setuptools here, as ROS packages do: on a robot the Python dependencies come
+    # from rosdep (package.xml); in a venv from requirements.txt (see the Makefile).
+    install_requires=['setuptools'],
     zip_safe=True,
     maintainer='accel_calib_ros maintainers',
     maintainer_email='maintainers@accel-calib.dev',

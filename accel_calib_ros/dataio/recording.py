@@ -42,8 +42,6 @@ import tempfile
 import warnings
 
 import numpy as np
-from rosbags.rosbag2 import Reader, StoragePlugin, Writer
-from rosbags.typesys import get_typestore, Stores
 
 from .atomic import atomic_path, fsync_directory, replace_into
 from ..core.errors import InputError
@@ -65,11 +63,27 @@ _MAX_LISTED = 5
 _typestore = None
 
 
+def _rosbags():
+    """
+    Import rosbags on first use, so CSV work needs nothing beyond numpy.
+
+    On a robot built with colcon, rosbags is not a rosdep key: ``pip install rosbags``.
+    """
+    try:
+        import rosbags.rosbag2
+        import rosbags.typesys
+    except ImportError:
+        raise InputError('reading or writing rosbag2 files needs the rosbags package: '
+                         'pip install rosbags') from None
+    return rosbags.rosbag2, rosbags.typesys
+
+
 def _types():
     """Return the ROS 2 Jazzy type store (built once, on first use)."""
     global _typestore
     if _typestore is None:
-        _typestore = get_typestore(Stores.ROS2_JAZZY)
+        typesys = _rosbags()[1]
+        _typestore = typesys.get_typestore(typesys.Stores.ROS2_JAZZY)
     return _typestore
 
 
@@ -499,8 +513,9 @@ def _time_axis(received, stamps):
 def _load_bag(path, imu_topic, temp_topic):
     """Read Imu (and Temperature) messages from a rosbag2 recording into Samples."""
     source = _bag_source(path)
+    rosbag2 = _rosbags()[0]
     try:
-        reader = Reader(source)
+        reader = rosbag2.Reader(source)
         reader.open()
     except Exception as exc:  # rosbags raises assorted errors on foreign or corrupt files
         raise InputError(f'{path}: not a readable rosbag2 recording ({_one_line(exc)}); '
@@ -678,8 +693,11 @@ def _write_bag_dir(bagdir, samples, imu_topic, temp_topic, frame_id, storage):
     if samples.temp is not None:
         temp_raw = _serialized_batch(TEMP_TYPE, frame_id, ns,
                                      np.column_stack([samples.temp, np.zeros(n)]))
-    plugin = StoragePlugin.SQLITE3 if storage == 'sqlite3' else StoragePlugin.MCAP
-    with Writer(bagdir, version=Writer.VERSION_LATEST, storage_plugin=plugin) as writer:
+    rosbag2 = _rosbags()[0]
+    plugins = rosbag2.StoragePlugin
+    plugin = plugins.SQLITE3 if storage == 'sqlite3' else plugins.MCAP
+    with rosbag2.Writer(bagdir, version=rosbag2.Writer.VERSION_LATEST,
+                        storage_plugin=plugin) as writer:
         imu_conn = writer.add_connection(imu_topic, IMU_TYPE, typestore=ts)
         temp_conn = None
         if temp_raw is not None:
