@@ -18,12 +18,8 @@ from collections import deque
 import json
 import math
 import os
-import sys
 
 import numpy as np
-from rcl_interfaces.msg import ParameterDescriptor
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data, QoSProfile,
                        ReliabilityPolicy)
@@ -31,6 +27,7 @@ from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
+from .common import declare, integer, number, run, text
 from ..core.calibration import calibrate, default_calibration_path
 from ..core.diagnose import diagnose_windows
 from ..core.errors import CalibrationError, InputError
@@ -55,89 +52,6 @@ PRIOR_WEIGHT = 1e-3
 DISTINCT_ANGLE_DEG = 15.0
 QUEUE_DEPTH = 200
 """Input queue depth (samples): 1 s at 200 Hz, 0.2 s at 1 kHz."""
-
-
-class ParameterProblem(ValueError):
-    """A node parameter has a value the node cannot work with (exit status 2)."""
-
-
-def declare(node, name, default, description):
-    """
-    Declare a parameter that accepts any type, so that validation can name it.
-
-    A YAML ``2`` for a parameter declared ``1.0`` would otherwise raise a type error
-    deep inside rclpy; here :func:`number`, :func:`text` and friends check the type.
-
-    :param node: the node.
-    :param name: parameter name.
-    :param default: default value.
-    :param description: one-line description shown by ``ros2 param describe``.
-    :return: the value given at start-up (or the default).
-    """
-    desc = ParameterDescriptor(description=description, dynamic_typing=True)
-    return node.declare_parameter(name, default, desc).value
-
-
-def number(name, value, low=None, high=None, low_open=False):
-    """
-    Check a numeric parameter and return it as float.
-
-    :param name: parameter name (for the message).
-    :param value: value as read.
-    :param low: smallest allowed value (or None).
-    :param high: largest allowed value (or None).
-    :param low_open: the value must be strictly above ``low``.
-    :return: float value.
-    :raises ParameterProblem: wrong type, not finite or out of range.
-    """
-    if isinstance(value, bool) or not isinstance(value, (int, float)) \
-            or not math.isfinite(value):
-        raise ParameterProblem(f'parameter {name!r} must be a finite number, got {value!r}')
-    value = float(value)
-    if low is not None and (value < low or (low_open and value <= low)):
-        raise ParameterProblem(f'parameter {name!r} must be {">" if low_open else ">="} '
-                               f'{low:g}, got {value:g}')
-    if high is not None and value > high:
-        raise ParameterProblem(f'parameter {name!r} must be <= {high:g}, got {value:g}')
-    return value
-
-
-def integer(name, value, low=None):
-    """
-    Check an integer parameter.
-
-    :param name: parameter name.
-    :param value: value as read.
-    :param low: smallest allowed value (or None).
-    :return: int value.
-    :raises ParameterProblem: wrong type or out of range.
-    """
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ParameterProblem(f'parameter {name!r} must be an integer, got {value!r}')
-    if low is not None and value < low:
-        raise ParameterProblem(f'parameter {name!r} must be >= {low}, got {value}')
-    return value
-
-
-def text(name, value, choices=None, empty_ok=False):
-    """
-    Check a string parameter.
-
-    :param name: parameter name.
-    :param value: value as read.
-    :param choices: allowed values (or None for any string).
-    :param empty_ok: whether '' is allowed.
-    :return: str value.
-    :raises ParameterProblem: wrong type, empty or not one of ``choices``.
-    """
-    if not isinstance(value, str):
-        raise ParameterProblem(f'parameter {name!r} must be a string, got {value!r}')
-    if choices is not None and value not in choices:
-        raise ParameterProblem(f'parameter {name!r} must be one of {", ".join(choices)}; '
-                               f'got {value!r}')
-    if not value and not empty_ok:
-        raise ParameterProblem(f'parameter {name!r} must not be empty')
-    return value
 
 
 def calibration_path(value):
@@ -596,21 +510,7 @@ class CalibrationNode(Node):
 
 def main(args=None):
     """Run the node until Ctrl-C; exit status 2 on a bad parameter."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = CalibrationNode()
-        rclpy.spin(node)
-    except ParameterProblem as err:
-        rclpy.logging.get_logger('accel_calibration').error(str(err))
-        rclpy.try_shutdown()
-        sys.exit(2)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    run(CalibrationNode, 'accel_calibration', args)
 
 
 if __name__ == '__main__':

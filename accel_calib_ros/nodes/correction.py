@@ -18,17 +18,15 @@ it is not reported at all).
 
 import math
 import os
-import sys
 
 import numpy as np
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data, QoSProfile,
                        ReliabilityPolicy)
 from sensor_msgs.msg import Imu, Temperature
 
-from .calibration import calibration_path, declare, number, ParameterProblem
+from .calibration import calibration_path
+from .common import declare, number, run
 from ..core.calibration import Calibration, default_calibration_path
 from ..core.errors import InputError
 
@@ -204,21 +202,7 @@ class CorrectionNode(Node):
 
 def main(args=None):
     """Run the node until Ctrl-C; exit status 2 on a bad parameter."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = CorrectionNode()
-        rclpy.spin(node)
-    except ParameterProblem as err:
-        rclpy.logging.get_logger('accel_correction').error(str(err))
-        rclpy.try_shutdown()
-        sys.exit(2)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    run(CorrectionNode, 'accel_correction', args)
 
 
 if __name__ == '__main__':

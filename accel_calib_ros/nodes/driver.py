@@ -15,20 +15,17 @@ device clock.
 """
 
 import math
-import sys
 import threading
 import time
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, Temperature
 import serial
 
+from .common import choice, declare, number, ParameterProblem, run, text
 from ..dataio.mpu9250_frame import (ACCEL_LSB_PER_G, AsciiLineParser, ClockMapper, Converter,
                                     FrameParser, GYRO_LSB_PER_DPS)
 
@@ -37,44 +34,6 @@ QUEUE_DEPTH = 100
 READ_TIMEOUT_S = 0.05
 FORMATS = ('binary', 'ascii')
 TIMESTAMPS = ('device', 'host')
-
-
-class ParameterProblem(ValueError):
-    """A parameter has a value the driver cannot work with (exit status 2)."""
-
-
-def _declare(node, name, default, description):
-    desc = ParameterDescriptor(description=description, dynamic_typing=True)
-    return node.declare_parameter(name, default, desc).value
-
-
-def _number(name, value, low=None, high=None, low_open=False):
-    if isinstance(value, bool) or not isinstance(value, (int, float)) \
-            or not math.isfinite(value):
-        raise ParameterProblem(f'parameter {name!r} must be a finite number, got {value!r}')
-    value = float(value)
-    if low is not None and (value < low or (low_open and value <= low)):
-        raise ParameterProblem(f'parameter {name!r} must be {">" if low_open else ">="} '
-                               f'{low:g}, got {value:g}')
-    if high is not None and value > high:
-        raise ParameterProblem(f'parameter {name!r} must be <= {high:g}, got {value:g}')
-    return value
-
-
-def _choice(name, value, allowed):
-    for option in allowed:
-        if isinstance(value, type(option)) and not isinstance(value, bool) and value == option:
-            return option
-        if isinstance(option, int) and isinstance(value, float) and value == option:
-            return option
-    text = ', '.join(str(a) for a in allowed)
-    raise ParameterProblem(f'parameter {name!r} must be one of {text}; got {value!r}')
-
-
-def _text(name, value):
-    if not isinstance(value, str) or not value:
-        raise ParameterProblem(f'parameter {name!r} must be a non-empty string, got {value!r}')
-    return value
 
 
 def _stamp(seconds):
@@ -95,43 +54,43 @@ class Mpu9250Driver(Node):
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         p = {}
-        p['port'] = _declare(self, 'port', '/dev/ttyUSB0', 'serial device path')
-        p['baud'] = _declare(self, 'baud', 115200, 'serial baud rate')
-        p['frame_id'] = _declare(self, 'frame_id', 'imu_link', 'frame_id of the messages')
-        p['accel_range_g'] = _declare(self, 'accel_range_g', 2,
-                                      'accelerometer full scale, ±g: 2, 4, 8 or 16')
-        p['gyro_range_dps'] = _declare(self, 'gyro_range_dps', 250,
-                                       'gyroscope full scale, ±°/s: 250, 500, 1000 or 2000')
-        p['format'] = _declare(self, 'format', 'binary', 'wire format: binary or ascii')
-        p['linear_acceleration_stddev'] = _declare(
+        p['port'] = declare(self, 'port', '/dev/ttyUSB0', 'serial device path')
+        p['baud'] = declare(self, 'baud', 115200, 'serial baud rate')
+        p['frame_id'] = declare(self, 'frame_id', 'imu_link', 'frame_id of the messages')
+        p['accel_range_g'] = declare(self, 'accel_range_g', 2,
+                                     'accelerometer full scale, ±g: 2, 4, 8 or 16')
+        p['gyro_range_dps'] = declare(self, 'gyro_range_dps', 250,
+                                      'gyroscope full scale, ±°/s: 250, 500, 1000 or 2000')
+        p['format'] = declare(self, 'format', 'binary', 'wire format: binary or ascii')
+        p['linear_acceleration_stddev'] = declare(
             self, 'linear_acceleration_stddev', 0.03,
             'accelerometer noise, m/s² (diagonal covariance; 0 = unknown)')
-        p['angular_velocity_stddev'] = _declare(
+        p['angular_velocity_stddev'] = declare(
             self, 'angular_velocity_stddev', 0.002,
             'gyroscope noise, rad/s (diagonal covariance; 0 = unknown)')
-        p['timestamp'] = _declare(self, 'timestamp', 'device',
-                                  'stamps from the device clock mapped to host time '
-                                  '(device) or from the receive time (host)')
-        p['reconnect_min_s'] = _declare(self, 'reconnect_min_s', 0.2,
-                                        'first reconnect delay, s')
-        p['reconnect_max_s'] = _declare(self, 'reconnect_max_s', 5.0,
-                                        'longest reconnect delay, s')
-        self.port = _text('port', p['port'])
+        p['timestamp'] = declare(self, 'timestamp', 'device',
+                                 'stamps from the device clock mapped to host time '
+                                 '(device) or from the receive time (host)')
+        p['reconnect_min_s'] = declare(self, 'reconnect_min_s', 0.2,
+                                       'first reconnect delay, s')
+        p['reconnect_max_s'] = declare(self, 'reconnect_max_s', 5.0,
+                                       'longest reconnect delay, s')
+        self.port = text('port', p['port'])
         self.baud = p['baud']
         if isinstance(self.baud, bool) or not isinstance(self.baud, int) or self.baud <= 0:
             raise ParameterProblem("parameter 'baud' must be a positive integer, "
                                    f'got {self.baud!r}')
-        self.frame_id = _text('frame_id', p['frame_id'])
-        accel_range = _choice('accel_range_g', p['accel_range_g'], tuple(ACCEL_LSB_PER_G))
-        gyro_range = _choice('gyro_range_dps', p['gyro_range_dps'], tuple(GYRO_LSB_PER_DPS))
-        self.format = _choice('format', p['format'], FORMATS)
-        self.timestamp = _choice('timestamp', p['timestamp'], TIMESTAMPS)
-        accel_std = _number('linear_acceleration_stddev', p['linear_acceleration_stddev'], 0.0)
-        gyro_std = _number('angular_velocity_stddev', p['angular_velocity_stddev'], 0.0)
-        self.reconnect_min_s = _number('reconnect_min_s', p['reconnect_min_s'], 0.0,
-                                       low_open=True)
-        self.reconnect_max_s = _number('reconnect_max_s', p['reconnect_max_s'],
-                                       self.reconnect_min_s)
+        self.frame_id = text('frame_id', p['frame_id'])
+        accel_range = choice('accel_range_g', p['accel_range_g'], tuple(ACCEL_LSB_PER_G))
+        gyro_range = choice('gyro_range_dps', p['gyro_range_dps'], tuple(GYRO_LSB_PER_DPS))
+        self.format = choice('format', p['format'], FORMATS)
+        self.timestamp = choice('timestamp', p['timestamp'], TIMESTAMPS)
+        accel_std = number('linear_acceleration_stddev', p['linear_acceleration_stddev'], 0.0)
+        gyro_std = number('angular_velocity_stddev', p['angular_velocity_stddev'], 0.0)
+        self.reconnect_min_s = number('reconnect_min_s', p['reconnect_min_s'], 0.0,
+                                      low_open=True)
+        self.reconnect_max_s = number('reconnect_max_s', p['reconnect_max_s'],
+                                      self.reconnect_min_s)
         self.converter = Converter(accel_range, gyro_range)
         self.accel_cov = [0.0] * 9
         self.gyro_cov = [0.0] * 9
@@ -337,28 +296,7 @@ def build_node(context=None, parameter_overrides=None):
 
 def main(args=None):
     """Run the node until Ctrl-C; exit status 2 on a bad parameter."""
-    rclpy.init(args=args)
-    node = None
-    code = 0
-    try:
-        node = Mpu9250Driver()
-        rclpy.spin(node)
-    except ParameterProblem as err:
-        rclpy.logging.get_logger(NODE_NAME).error(str(err))
-        code = 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except RuntimeError:
-        # A SIGINT landing inside a pybind11 call surfaces as RuntimeError (a known rclpy
-        # race at shutdown); only a real error while the context is still up is reported.
-        if rclpy.ok():
-            raise
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    if code:
-        sys.exit(code)
+    run(Mpu9250Driver, NODE_NAME, args)
 
 
 if __name__ == '__main__':
