@@ -167,11 +167,13 @@ def distinct_directions(vectors, min_angle_deg=10.0):
     u = np.asarray(vectors, float)
     u = u / np.linalg.norm(u, axis=1, keepdims=True)
     cos_min = np.cos(np.radians(min_angle_deg))
-    chosen = []
-    for v in u:
-        if all(v @ c < cos_min for c in chosen):
-            chosen.append(v)
-    return len(chosen)
+    remaining = np.ones(len(u), bool)
+    count = 0
+    while remaining.any():            # greedy: take one, drop all its neighbours
+        pick = u[np.argmax(remaining)]
+        remaining &= u @ pick < cos_min
+        count += 1
+    return count
 
 
 class OnlineStaticDetector:
