@@ -313,18 +313,23 @@ COMMANDS = {'fit': cmd_fit, 'apply': cmd_apply, 'simulate': cmd_simulate, 'diagn
 COMMANDS['simulate-device'] = cmd_simulate_device
 
 
-def _json_default(value):
-    if isinstance(value, np.ndarray):
-        return value.tolist()
+def _plain(value):
+    """Return ``value`` as strict-JSON data: lists, floats, None for NaN or infinity."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [_plain(v) for v in value]
     if isinstance(value, np.generic):
-        return value.item()
-    raise TypeError(f'not JSON serialisable: {type(value).__name__}')
+        value = value.item()
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
 
 
 def main(argv=None):
     """Entry point of the ``accel-calib`` console script; returns the exit status."""
     def out(obj):
-        print(json.dumps(obj, default=_json_default, allow_nan=True))
+        print(json.dumps(_plain(obj), allow_nan=False))
 
     try:
         args = build_parser().parse_args(argv)

@@ -186,3 +186,19 @@ def test_installed_console_script_runs(tmp_path):
     proc = subprocess.run([exe, 'fit', str(tmp_path / 'missing.csv')], capture_output=True,
                           text=True, timeout=60)
     assert proc.returncode == 2 and proc.stderr.count('\n') == 1
+
+
+def test_six_face_session_gn_fits_ml_refuses_and_json_is_strict(capsys, tmp_path):
+    data = tmp_path / 'faces.csv'
+    truth = tmp_path / 'truth.yaml'
+    assert run(capsys, 'simulate', '-o', data, '--poses', 'faces', '--orthogonal',
+               '--truth', truth)[0] == 0
+    code, out, err = run(capsys, 'fit', data, '--method', 'gn', '--json')
+    assert code == 0, err
+    summary = json.loads(out, parse_constant=lambda c: pytest.fail(f'{c} in JSON'))
+    true = yaml.safe_load(truth.read_text())
+    np.testing.assert_allclose(np.diag(summary['T']), np.diag(true['T']), atol=1e-3)
+    np.testing.assert_allclose(summary['bias'], true['bias_m_s2'], atol=0.01)
+    assert summary['observations'] == 6
+    code, _, err = run(capsys, 'fit', data, '--method', 'ml')
+    assert code == 1 and 'orientations' in err

@@ -232,7 +232,7 @@ def gravity_residuals(cal_or_T, bias, readings, gravity, temps=None):
 def check_geometry(readings, method):
     """Raise CalibrationError unless the observations can determine ``method``'s model."""
     n = len(readings)
-    need_obs, need_dirs = (7, 6) if method == 'gn' else (10, 9)
+    need_obs, need_dirs = (6, 6) if method == 'gn' else (10, 9)
     if n < need_obs:
         raise CalibrationError(
             f'{n} static observations; method {method} needs at least {need_obs} '

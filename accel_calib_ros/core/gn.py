@@ -72,7 +72,7 @@ def fit_gn(readings, weights=None, radius=1.0, max_iter=100, tol=1e-12):
     Levenberg-Marquardt damping when a plain Gauss-Newton step does not reduce the
     residual.
 
-    :param readings: (N, 3) raw readings, N >= 7 (six faces plus one to test).
+    :param readings: (N, 3) raw readings, N >= 6 (the six faces).
     :param weights: (N,) observation weights (default 1).
     :param radius: gravity magnitude in reading units.
     :returns: GNResult.
@@ -130,8 +130,9 @@ def fit_gn(readings, weights=None, radius=1.0, max_iter=100, tol=1e-12):
                                'scale and bias (record all six faces)')
     J = jacobian(k, d)
     info = J.T @ (w[:, None] * J)
-    dof = max(n - 6, 1)
-    sigma2 = cost / dof
+    # Six observations determine the six parameters exactly: no residual is left to
+    # estimate the noise from, so the covariance is unknown (NaN), not zero.
+    sigma2 = cost / (n - 6) if n > 6 else np.nan
     try:
         cov_dk = sigma2 * np.linalg.inv(info)
     except np.linalg.LinAlgError:
