@@ -65,10 +65,6 @@ def _per_axis(values):
     return cols
 
 
-def _axes(values, fmt):
-    return ', '.join(f'{axis} {fmt(v)}' for axis, v in zip('xyz', values))
-
-
 class Nonorthogonality(Effect):
     name = 'nonorthogonality'
     description = 'the sensitive axes are not at right angles (cross-axis sensitivity)'
@@ -91,7 +87,22 @@ class Nonorthogonality(Effect):
             f'{pair} {v:+.3f}°' for pair, v in zip(('xy', 'xz', 'yz'), angles))
 
 
-class ScaleNonlinearity(Effect):
+class PerAxisEffect(Effect):
+    """An effect with one parameter per axis, reported per axis after dividing by T_ii."""
+
+    label = ''
+
+    def axis_text(self, value, gravity):
+        """Return one axis's parameter (per unit sensitivity) as datasheet text."""
+        raise NotImplementedError
+
+    def magnitude(self, params, gravity=G0, sensitivity=(1.0, 1.0, 1.0)):
+        params = np.asarray(params, float) / np.asarray(sensitivity)
+        return f'{self.label} ' + ', '.join(
+            f'{axis} {self.axis_text(v, gravity)}' for axis, v in zip('xyz', params))
+
+
+class ScaleNonlinearity(PerAxisEffect):
     name = 'scale_nonlinearity'
     description = 'the scale factor changes with the acceleration (quadratic response)'
     param_names = ('k2_x', 'k2_y', 'k2_z')
@@ -100,12 +111,13 @@ class ScaleNonlinearity(Effect):
     def columns(self, accel, temp, time, gravity=G0):
         return _per_axis(accel ** 2 / gravity)
 
-    def magnitude(self, params, gravity=G0, sensitivity=(1.0, 1.0, 1.0)):
-        params = np.asarray(params, float) / np.asarray(sensitivity)
-        return 'nonlinearity ' + _axes(params, lambda v: f'{100 * v:+.3f} % of reading at 1 g')
+    label = 'nonlinearity'
+
+    def axis_text(self, value, gravity):
+        return f'{100 * value:+.3f} % of reading at 1 g'
 
 
-class TemperatureBias(Effect):
+class TemperatureBias(PerAxisEffect):
     name = 'temperature_bias'
     description = 'the zero-g offset moves with temperature'
     param_names = ('c_x', 'c_y', 'c_z')
@@ -118,12 +130,13 @@ class TemperatureBias(Effect):
     def columns(self, accel, temp, time, gravity=G0):
         return _per_axis(np.repeat(temp[:, None], 3, axis=1))
 
-    def magnitude(self, params, gravity=G0, sensitivity=(1.0, 1.0, 1.0)):
-        params = np.asarray(params, float) / np.asarray(sensitivity)
-        return 'offset drift ' + _axes(params, lambda v: f'{1000 * v / gravity:+.3f} mg/°C')
+    label = 'offset drift'
+
+    def axis_text(self, value, gravity):
+        return f'{1000 * value / gravity:+.3f} mg/°C'
 
 
-class TemperatureScale(Effect):
+class TemperatureScale(PerAxisEffect):
     name = 'temperature_scale'
     description = 'the scale factor moves with temperature'
     param_names = ('s_x', 's_y', 's_z')
@@ -134,12 +147,13 @@ class TemperatureScale(Effect):
     def columns(self, accel, temp, time, gravity=G0):
         return _per_axis(temp[:, None] * accel)
 
-    def magnitude(self, params, gravity=G0, sensitivity=(1.0, 1.0, 1.0)):
-        params = np.asarray(params, float) / np.asarray(sensitivity)
-        return 'scale drift ' + _axes(params, lambda v: f'{100 * v:+.4f} %/°C')
+    label = 'scale drift'
+
+    def axis_text(self, value, gravity):
+        return f'{100 * value:+.4f} %/°C'
 
 
-class BiasDrift(Effect):
+class BiasDrift(PerAxisEffect):
     name = 'bias_drift'
     description = 'the zero-g offset wanders with time (not with temperature)'
     param_names = ('d_x', 'd_y', 'd_z')
@@ -152,10 +166,10 @@ class BiasDrift(Effect):
     def columns(self, accel, temp, time, gravity=G0):
         return _per_axis(np.repeat(time[:, None], 3, axis=1))
 
-    def magnitude(self, params, gravity=G0, sensitivity=(1.0, 1.0, 1.0)):
-        params = np.asarray(params, float) / np.asarray(sensitivity)
-        return 'offset drift ' + _axes(params,
-                                       lambda v: f'{60000 * v / gravity:+.3f} mg/min')
+    label = 'offset drift'
+
+    def axis_text(self, value, gravity):
+        return f'{60000 * value / gravity:+.3f} mg/min'
 
 
 EFFECTS = {effect.name: effect for effect in (
