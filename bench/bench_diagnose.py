@@ -14,6 +14,7 @@ it. Prints figures, asserts nothing.
 import argparse
 import os
 import sys
+import zlib
 
 from accel_calib_ros.core.calibration import calibrate, gravity_residuals
 from accel_calib_ros.core.diagnose import diagnose
@@ -56,7 +57,7 @@ def detection(trials):
     for name in EFFECTS:
         row = []
         for scale in scales:
-            rng = np.random.default_rng(hash((name, scale)) % 2 ** 32)
+            rng = np.random.default_rng(zlib.crc32(f'{name} {scale}'.encode()))
             hits = 0
             for _ in range(trials):
                 windows, baseline = session(rng, name, scale)
