@@ -296,6 +296,32 @@ def test_thermal_tables_when_two_bands_are_filled(node_in_process, tmp_path):
     assert not response.success and 'thermal:=auto' in response.message, response.message
 
 
+def test_gn_response_names_the_missing_nonorthogonality(node_in_process):
+    rng = np.random.default_rng(11)
+    sensor = mpu9250_like(rng, rate_hz=200.0)
+    sensor.T = np.diag(np.diag(sensor.T))
+    sensor.T[0, 1], sensor.T[1, 2] = 0.02, -0.015          # 1.1° and 0.9° off square
+    u = directions(30, 12)
+    noise = sensor.noise_std[0]
+    means = simulate_window_means(sensor, u, 300, rng)
+    # Refused for its residual by default, with the reason the check finds ...
+    node = node_in_process(method='gn')
+    inject_windows(node, means, np.full(30, 25.0), scatter=noise)
+    response = node.on_calibrate(Trigger.Request(), Trigger.Response())
+    assert not response.success and 'residual' in response.message, response.message
+    assert 'nonorthogonality' in response.message and 'gn model' in response.message
+    # ... and accepted with the same note when the residual limit allows it.
+    node = node_in_process(method='gn', max_residual_ratio=1000.0)
+    inject_windows(node, means, np.full(30, 25.0), scatter=noise)
+    response = node.on_calibrate(Trigger.Request(), Trigger.Response())
+    assert response.success, response.message
+    assert 'nonorthogonality' in response.message and 'gn model' in response.message
+    node = node_in_process(method='ml')
+    inject_windows(node, means, np.full(30, 25.0), scatter=noise)
+    response = node.on_calibrate(Trigger.Request(), Trigger.Response())
+    assert response.success and 'Note' not in response.message, response.message
+
+
 def test_config_files_match_the_declared_parameters():
     from accel_calib_ros.nodes.correction import CorrectionNode
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -464,7 +464,8 @@ class CalibrationNode(Node):
                 f'{expected:.4f} m/s2 (limit {p["max_residual_ratio"]:g}x): the sensor moved '
                 'during the poses or the model does not fit this sensor'
                 + ('' if thermal or not self._thermal_wanted(temps, 'auto') else
-                   '; the windows fill two temperature bands: try thermal:=auto'))
+                   '; the windows fill two temperature bands: try thermal:=auto')
+                + self._diagnose_hint(prefix='. '))
         problems = cal.physical_problems(p['max_scale_error'], p['max_cross_axis'],
                                          p['max_bias_g'])
         if problems:
@@ -481,10 +482,9 @@ class CalibrationNode(Node):
                    f'bias {np.round(cal.bias, 4).tolist()} m/s2, non-orthogonality '
                    f'{np.round(cal.nonorthogonality_deg, 3).tolist()} deg (xy, xz, yz), '
                    f'residual {cal.residual_rms:.4f} m/s2, thermal bands {bands}')
-        hint = self._diagnose_hint()
-        return msg + ('. ' + hint if hint else '')
+        return msg + self._diagnose_hint(prefix='. ')
 
-    def _diagnose_hint(self):
+    def _diagnose_hint(self, prefix=''):
         """Return one sentence when the model-gap check names an effect the method lacks."""
         w = list(self.windows)
         count = np.array([x['count'] for x in w], int)
@@ -504,8 +504,9 @@ class CalibrationNode(Node):
             return ''
         details = '; '.join(f'{step["effect"]} ({step["evidence"]["magnitude"]})'
                             for step in report.steps)
-        return (f'Note: the data show {details}, which the {self.params["method"]} model '
-                f'does not include (gap {report.gap_before:.1f} -> {report.gap_after:.1f})')
+        return (f'{prefix}Note: the data show {details}, which the {self.params["method"]} '
+                f'model does not include (gap {report.gap_before:.1f} -> '
+                f'{report.gap_after:.1f})')
 
 
 def main(args=None):
