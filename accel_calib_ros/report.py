@@ -27,16 +27,20 @@ def _residual_figure(path, fit, model_label, c, directions):
     r = fit.residuals
     panels = [('temperature - mean, °C', c.temp), ('time - mean, s', c.time),
               ('z component of gravity direction', directions[:, 2])]
+    nearest = np.argmax(np.abs(directions), axis=1)
     for ax, (label, x) in zip(axes, panels):
-        colour = np.argmax(np.abs(directions), axis=1)
-        ax.scatter(x, r, c=colour, cmap='viridis', s=14, vmin=0, vmax=2)
+        for axis, colour in enumerate(('tab:red', 'tab:green', 'tab:blue')):
+            mine = nearest == axis
+            ax.scatter(x[mine], r[mine], color=colour, s=14,
+                       label=f'{"xyz"[axis]} axis nearest vertical')
         ax.axhline(0, color='k', lw=0.8)
         for band in (-2, 2):
             ax.axhline(band, color='grey', lw=0.6, ls='--')
         ax.set_xlabel(label)
         ax.grid(alpha=0.3)
     axes[0].set_ylabel('(|a| - g) / noise')
-    fig.suptitle(f'{model_label}: gap {fit.gap:.2f}   (colour: axis nearest vertical, x/y/z)')
+    axes[0].legend(fontsize=7, loc='best')
+    fig.suptitle(f'{model_label}: gap {fit.gap:.2f}')
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=90)
