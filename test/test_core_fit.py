@@ -45,15 +45,16 @@ def test_schur_step_equals_dense_newton_step():
     u = np.linalg.solve(T, (y - b).T).T
     u = u / np.linalg.norm(u, axis=1, keepdims=True) + 0.01 * rng.standard_normal(u.shape)
     w = rng.uniform(0.5, 2.0, len(y))
-    problem = _Problem(y, w / w.mean())
-    S, rhs, _ = problem.schur(p, u)
+    problem = _Problem(np.ascontiguousarray(y.T), w / w.mean(), block=4)
+    S, rhs, _, _ = problem.schur(p, u.T)
     dp = np.linalg.solve(S, rhs)
+    u_new = problem.step(p, u.T, dp, 0.0)[0].T
 
     # Dense Lagrangian Hessian of L = 1/2 sum w |r|² + 1/2 sum lambda (|u|² - 1).
     w = w / w.mean()
     n = len(y)
     r = y - u @ T.T - b
-    lam = w * np.einsum('ij,ij->i', u @ T, r)
+    lam = w * np.einsum('ij,ij->i', u @ T.T, r)       # u_kᵀ Tᵀ r_k: the KKT multiplier
     rows, cols = np.triu_indices(3)
     dim = 9 + 4 * n
     H, g = np.zeros((dim, dim)), np.zeros(dim)
@@ -76,6 +77,9 @@ def test_schur_step_equals_dense_newton_step():
         g[s + 3] = 0.5 * (u[k] @ u[k] - 1)
     dense = np.linalg.solve(H, -g)
     np.testing.assert_allclose(dp, dense[:9], rtol=1e-7, atol=1e-10)
+    du = dense[9:].reshape(n, 4)[:, :3]
+    np.testing.assert_allclose(u_new, (u + du) / np.linalg.norm(u + du, axis=1)[:, None],
+                               rtol=1e-7, atol=1e-10)
 
 
 def test_weight_two_equals_a_duplicated_observation():

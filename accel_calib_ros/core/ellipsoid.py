@@ -7,20 +7,54 @@ from .errors import CalibrationError
 UPPER = np.triu_indices(3)
 """Row-major indices of the six upper-triangular entries of T."""
 
+BLOCK = 8192
+"""Observations processed at once by the blocked loops (temporaries stay in cache)."""
+
+_BATCH = 1024
+"""Columns per BLAS call in :func:`cross_product` (small calls stay single-threaded)."""
+
+
+def cross_product(a, b):
+    """
+    Return ``a @ bᵀ`` for wide (p, n) and (q, n) arrays, summed from small products.
+
+    One product with a long inner dimension makes OpenBLAS start its threads; on a
+    loaded machine that costs milliseconds per call. Here the columns go through one
+    batched matmul in slices of :data:`_BATCH`, each BLAS call small enough to stay
+    on one thread, and the partial products are summed.
+    """
+    p, n = a.shape
+    q = b.shape[0]
+    m = n - n % _BATCH
+    out = np.zeros((p, q))
+    if m:
+        out += np.matmul(a[:, :m].reshape(p, -1, _BATCH).transpose(1, 0, 2),
+                         b[:, :m].reshape(q, -1, _BATCH).transpose(1, 2, 0)).sum(axis=0)
+    if m < n:
+        out += a[:, m:] @ b[:, m:].T
+    return out
+
 
 def _design(x):
-    """Rows (x², y², z², 2xy, 2xz, 2yz, 2x, 2y, 2z, 1) of eq. 17, shape (N, 10)."""
-    X, Y, Z = x.T
-    return np.column_stack([X * X, Y * Y, Z * Z, 2 * X * Y, 2 * X * Z, 2 * Y * Z,
-                            2 * X, 2 * Y, 2 * Z, np.ones(len(x))])
+    """Rows (x², y², z², 2xy, 2xz, 2yz, 2x, 2y, 2z, 1) of eq. 17 for x (3, n): (10, n)."""
+    X, Y, Z = x
+    D = np.empty((10, x.shape[1]))
+    np.multiply(x, x, out=D[:3])
+    np.multiply(X, Y, out=D[3])
+    np.multiply(X, Z, out=D[4])
+    np.multiply(Y, Z, out=D[5])
+    D[3:6] *= 2.0
+    np.multiply(x, 2.0, out=D[6:9])
+    D[9] = 1.0
+    return D
 
 
 def fit_ellipsoid(readings, weights=None, radius=1.0):
     """
     Fit ``readings`` to an ellipsoid: ``readings = T @ u + bias`` with ``|u| = radius``.
 
-    Algebraic least squares on eq. 17 (smallest singular vector of the weighted design
-    matrix, after centring and scaling the data for conditioning), then
+    Algebraic least squares on eq. 17 (smallest eigenvector of the weighted normal
+    matrix of the design, after centring and scaling the data for conditioning), then
     ``R = chol(E)``, ``bias = -E⁻¹ F`` (eq. 18) and ``T = R⁻¹`` (upper triangular).
 
     :param readings: (N, 3) readings, any unit (N >= 9).
@@ -34,14 +68,36 @@ def fit_ellipsoid(readings, weights=None, radius=1.0):
         raise CalibrationError(
             f'an ellipsoid needs at least 9 observations, got {len(y)}')
     w = np.ones(len(y)) if weights is None else np.asarray(weights, dtype=float)
-    centre0 = np.average(y, axis=0, weights=w)
-    scale0 = np.sqrt(np.average(np.sum((y - centre0) ** 2, axis=1), weights=w))
+    return fit_ellipsoid_columns(np.ascontiguousarray(y.T), w, radius)
+
+
+def fit_ellipsoid_columns(yt, w, radius=1.0):
+    """
+    :func:`fit_ellipsoid` on readings stored by component, ``yt`` (3, N).
+
+    :param yt: (3, N) readings, any unit (N >= 9).
+    :param w: (N,) non-negative observation weights.
+    :param radius: norm of the true vectors.
+    :returns: (T (3, 3), bias (3,)) as :func:`fit_ellipsoid`.
+    """
+    n = yt.shape[1]
+    wsum = float(np.sum(w))
+    centre0 = (yt @ w) / wsum
+    scale0 = 0.0
+    for s in range(0, n, BLOCK):
+        d = yt[:, s:s + BLOCK] - centre0[:, None]
+        scale0 += float(np.sum(w[s:s + BLOCK] * np.sum(d * d, axis=0)))
+    scale0 = np.sqrt(scale0 / wsum)
     if not scale0 > 0:
         raise CalibrationError('all observations are identical')
-    x = (y - centre0) / scale0
-    design = _design(x) * np.sqrt(w)[:, None]
-    _, sv, vt = np.linalg.svd(design, full_matrices=False)
-    coef = vt[-1]
+    # Smallest eigenvector of the weighted normal matrix D W Dᵀ of the design (the
+    # data are centred and scaled, so its condition is that of the geometry), summed
+    # over blocks so no (10, N) design matrix is held at once.
+    gram = np.zeros((10, 10))
+    for s in range(0, n, BLOCK):
+        design = _design((yt[:, s:s + BLOCK] - centre0[:, None]) / scale0)
+        gram += cross_product(design * w[s:s + BLOCK], design)
+    coef = np.linalg.eigh(gram)[1][:, 0]
     a, b, c, f, g, h, p, q, r, d = coef
     E = np.array([[a, f, g], [f, b, h], [g, h, c]])
     F = np.array([p, q, r])
@@ -69,7 +125,12 @@ def fit_ellipsoid(readings, weights=None, radius=1.0):
         raise CalibrationError(
             f'the fitted ellipsoid is flat (axis ratio {axes[-1] / axes[0]:.3f}): the '
             'orientations do not span three dimensions; tilt the sensor out of the plane')
-    check_coverage((y - bias) @ R.T / radius, w)
+    scatter = np.zeros((3, 3))
+    for s in range(0, n, BLOCK):
+        u = R @ (yt[:, s:s + BLOCK] - bias[:, None])
+        u /= np.sqrt(np.sum(u * u, axis=0))
+        scatter += cross_product(u * w[s:s + BLOCK], u)
+    check_scatter(scatter / wsum)
     return T, bias
 
 
@@ -85,7 +146,16 @@ def check_coverage(directions, weights=None):
     u = np.asarray(directions, float)
     u = u / np.linalg.norm(u, axis=1, keepdims=True)
     w = np.ones(len(u)) if weights is None else np.asarray(weights, float)
-    scatter = (u * w[:, None]).T @ u / np.sum(w)
+    return check_scatter((u * w[:, None]).T @ u / np.sum(w))
+
+
+def check_scatter(scatter):
+    """
+    Raise CalibrationError unless the direction scatter reaches out along all axes.
+
+    :param scatter: (3, 3) weighted mean of u uᵀ over unit directions u.
+    :returns: its smallest eigenvalue (the coverage).
+    """
     coverage = np.linalg.eigvalsh(scatter)[0]
     if coverage < MIN_COVERAGE:
         raise CalibrationError(

@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from .ellipsoid import check_coverage, fit_ellipsoid, UPPER
+from .ellipsoid import BLOCK, check_scatter, cross_product, fit_ellipsoid_columns, UPPER
 from .errors import CalibrationError
 
 PARAMETER_NAMES = ('T_xx', 'T_xy', 'T_xz', 'T_yy', 'T_yz', 'T_zz', 'b_x', 'b_y', 'b_z')
@@ -51,7 +51,12 @@ def _jacobian(u):
 
 
 _ROW, _COL = UPPER
-_UNIT = np.eye(3)
+
+STEP_TOLERANCE = 1e-6
+"""Converged when the last Newton step moved the fit by at most this many standard errors."""
+
+PRECISION_FACTOR = 1e3
+"""Steps below this many machine epsilons of the (normalised) readings are roundoff."""
 
 
 def _normalise(v):
@@ -69,6 +74,9 @@ class MLResult:
     :param covariance: (9, 9) parameter covariance, order :data:`PARAMETER_NAMES`.
     :param sigma: estimated per-weight noise standard deviation, reading units.
     :param objective: final value of sum_k w_k |y_k - T u_k - b|² / 2, reading units².
+    :param iterations: Newton iterations taken.
+    :param converged: the last step was below :data:`STEP_TOLERANCE` standard errors (or
+        at the roundoff floor) and the reduced Hessian is positive definite.
     :param trace: objective after each iteration (first entry: the start).
     """
 
@@ -85,91 +93,207 @@ class MLResult:
 
 
 class _Problem:
-    """The ML objective in normalised units (radius 1) and its Newton step."""
+    """
+    The ML objective (readings normalised to radius 1) and its Newton system.
 
-    def __init__(self, y, w):
-        self.y = y
+    Per observation the KKT block is ``[[M_k, u_k], [u_kᵀ, 0]]`` with
+    ``M_k = w_k TᵀT + lambda_k I``. All ``M_k`` share the eigenvectors ``V`` of
+    ``TᵀT``, so their inverses are diagonal in that basis. The Schur complement
+    ``S = A - sum_k C_k P_k C_kᵀ`` (``C_k`` the 9x3 coupling, ``P_k`` the projected
+    inverse) is accumulated without forming the couplings: each ``C_k`` is linear in
+    ``u_k`` and ``r_k``, so ``sum_k C_k diag(1/d_k) C_kᵀ`` is a fixed contraction of
+    the moments ``sum_k w_k²/d_km (1, u, r, u uᵀ, u rᵀ, r rᵀ)``, and those moments
+    (with the plain weighted ones that give ``A``, the gradient and the objective)
+    come from one BLAS product per block of observations. Data are held by component
+    (3, N) so every elementwise operation runs over long contiguous rows, and blocks
+    of :data:`BLOCK` observations keep the temporaries in cache: the cost is a few
+    passes over the data per iteration.
+
+    :param yt: (3, N) normalised readings.
+    :param w: (N,) weights, mean 1.
+    """
+
+    def __init__(self, yt, w, block=BLOCK):
+        self.yt = yt
         self.w = w
+        self.n = yt.shape[1]
+        self.block = int(block)
+        self.data_energy = float(np.sum(w * np.sum(yt * yt, axis=0)))
 
-    def objective(self, p, u):
+    def _blocks(self):
+        for start in range(0, self.n, self.block):
+            yield slice(start, start + self.block)
+
+    @staticmethod
+    def _basis(p):
         T, b = unpack(p)
-        r = self.y - u @ T.T - b
-        return 0.5 * float(np.sum(self.w * np.einsum('ij,ij->i', r, r)))
+        evals, V = np.linalg.eigh(T.T @ T)
+        return T, b, evals, V, T @ V
 
-    def schur(self, p, u, damping=0.0):
-        """
-        Reduced 9x9 Newton system ``S dp = rhs`` and the back-substitution pieces.
+    @staticmethod
+    def _local(basis, y, w, u, damping):
+        """Residuals and the per-observation (V basis) pieces of the KKT solve."""
+        T, b, evals, V, TV = basis
+        Tu = T @ u
+        r = y - Tu - b[:, None]
+        wr = w * r
+        lam = np.sum(Tu * wr, axis=0)                          # u_kᵀ Tᵀ w_k r_k
+        u_v = V.T @ u
+        g_uv = lam * u_v - TV.T @ wr                            # Vᵀ dL/du_k
+        g_l = 0.5 * (np.sum(u * u, axis=0) - 1.0)               # dL/dlambda_k
+        dinv = 1.0 / ((evals + damping * np.mean(evals))[:, None] * w + lam)
+        Mu_v = dinv * u_v                                       # M_k⁻¹ u_k, V basis
+        uMu = np.sum(u_v * Mu_v, axis=0)
+        return r, wr, g_uv, g_l, dinv, Mu_v, uMu
 
-        Per observation the KKT block is ``[[M_k, u_k], [u_kᵀ, 0]]`` with
-        ``M_k = w_k TᵀT + lambda_k I``. All ``M_k`` share the eigenvectors ``V`` of
-        ``TᵀT``, so their inverses are diagonal in that basis; the sums over
-        observations are BLAS matrix products over flattened (9, 3N) arrays.
-        """
-        T, b = unpack(p)
-        w = self.w
-        r = self.y - u @ T.T - b                                # (N, 3)
-        wr = w[:, None] * r
-        lam = np.einsum('ij,ij->i', u @ T, wr)                  # least-squares multipliers
-        g_u = -(wr @ T) + lam[:, None] * u                       # dL/du_k
-        g_l = 0.5 * (np.einsum('ij,ij->i', u, u) - 1.0)          # dL/dlambda_k
-        # A = sum_k w_k J_kᵀ J_k and dL/dp from the weighted moments of u and r.
-        Wuu = u.T @ (w[:, None] * u)
-        Wu = w @ u
+    @staticmethod
+    def _accumulate(acc, basis, y, w, u, damping):
+        """Add one block's moments, rank-one terms and right-hand side to ``acc``."""
+        T, b, evals, V, TV = basis
+        r, wr, g_uv, g_l, dinv, Mu_v, uMu = _Problem._local(basis, y, w, u, damping)
+        n = len(w)
+        X = np.empty((4, n))
+        np.multiply(w * w, dinv, out=X[:3])
+        X[3] = w
+        Z = np.empty((34, n))
+        Z[0] = 1.0
+        Z[1:4] = u
+        Z[4:7] = r
+        np.multiply(u[:, None], u[None], out=Z[7:16].reshape(3, 3, n))
+        np.multiply(u[:, None], r[None], out=Z[16:25].reshape(3, 3, n))
+        np.multiply(r[:, None], r[None], out=Z[25:34].reshape(3, 3, n))
+        acc['moments'] += cross_product(X, Z)
+        # Rank-one part: C_k M_k⁻¹ u_k (9,) per observation, over u_kᵀ M_k⁻¹ u_k.
+        alpha = TV @ Mu_v
+        beta = V @ Mu_v
+        H = np.empty((9, n))
+        np.multiply(u[_COL], alpha[_ROW], out=H[:6])
+        H[:6] -= r[_ROW] * beta[_COL]
+        H[6:] = alpha
+        H *= w
+        # Right-hand side: sum_k C_k (P_k g_u + q_k g_l).
+        Pg = dinv * g_uv - Mu_v * ((np.sum(Mu_v * g_uv, axis=0) - g_l) / uMu)
+        G = np.empty((6, n))
+        np.multiply(w, TV @ Pg, out=G[:3])
+        np.negative(V @ Pg, out=G[3:])
+        acc['rank_one'] += cross_product(H / uMu, H)
+        acc['rhs'] += cross_product(G, np.concatenate([u, wr]))
+        acc['rhs_b'] += np.sum(G[:3], axis=1)
+
+    @staticmethod
+    def _new_accumulator():
+        return {'moments': np.zeros((4, 34)), 'rank_one': np.zeros((9, 9)),
+                'rhs': np.zeros((6, 6)), 'rhs_b': np.zeros(3)}
+
+    @staticmethod
+    def _system(acc, basis, damping):
+        """Assemble ``S`` (9x9), ``rhs`` (9,), the objective and the direction scatter."""
+        T, b, evals, V, TV = basis
+        M = acc['moments']
+        m1, mu, mr = M[:3, 0], M[:3, 1:4], M[:3, 4:7]
+        muu, mur, mrr = (M[:3, s].reshape(3, 3, 3) for s in
+                         (slice(7, 16), slice(16, 25), slice(25, 34)))
+        wsum, wu, wr = M[3, 0], M[3, 1:4], M[3, 4:7]
+        wuu, wur, wrr = (M[3, s].reshape(3, 3) for s in
+                         (slice(7, 16), slice(16, 25), slice(25, 34)))
+        # sum_k C_k diag(1/d_k) C_kᵀ over all (i, j) pairs of T, then the bias rows.
+        Q = (np.einsum('im,km,mjl->ijkl', TV, TV, muu)
+             - np.einsum('im,lm,mjk->ijkl', TV, V, mur)
+             - np.einsum('jm,km,mli->ijkl', V, TV, mur)
+             + np.einsum('jm,lm,mik->ijkl', V, V, mrr))
+        Qb = np.einsum('im,km,mj->ijk', TV, TV, mu) - np.einsum('jm,km,mi->ijk', V, TV, mr)
+        Qbb = np.einsum('im,km,m->ik', TV, TV, m1)
         A = np.zeros((9, 9))
+        K = np.zeros((9, 9))
         for a, (i, j) in enumerate(zip(_ROW, _COL)):
             for c, (k, m) in enumerate(zip(_ROW, _COL)):
                 if i == k:
-                    A[a, c] = Wuu[j, m]
-            A[a, 6 + i] = A[6 + i, a] = Wu[j]
-        A[6:, 6:] = np.sum(w) * np.eye(3)
-        Wru = wr.T @ u
-        g_p = -np.concatenate([Wru[UPPER], wr.sum(axis=0)])
-        # Coupling d²L/(dp du_k) = w (Jᵀ T - D), D[T_ij, m] = r_i delta_jm, expressed
-        # in the eigenbasis V of TᵀT and laid out (9, N, 3) so sums are BLAS products.
-        TtT = T.T @ T
-        evals, V = np.linalg.eigh(TtT)
-        TV = T @ V
-        Cv = np.empty((9, len(w), 3))
-        for a, (i, j) in enumerate(zip(_ROW, _COL)):
-            Cv[a] = u[:, j:j + 1] * TV[i] - r[:, i:i + 1] * V[j]
-        Cv[6:] = TV[:, None, :]
-        Cv *= w[None, :, None]
-        diag = w[:, None] * evals[None, :] + lam[:, None]         # M_k in the V basis
-        if damping:
-            diag = diag + damping * np.mean(evals) * w[:, None]
-        dinv = 1.0 / diag                                        # (N, 3)
-        u_v = u @ V
-        Mu_v = dinv * u_v                                        # Vᵀ M⁻¹ u
-        uMu = np.einsum('ni,ni->n', u_v, Mu_v)
-        flat = Cv.reshape(9, -1)
-        CMu = np.einsum('ink,nk->in', Cv, Mu_v)                   # C M⁻¹ u, (9, N)
-        S = A - (Cv * dinv[None]).reshape(9, -1) @ flat.T + (CMu / uMu) @ CMu.T
+                    A[a, c] = wuu[j, m]
+                K[a, c] = Q[i, j, k, m]
+            A[a, 6 + i] = A[6 + i, a] = wu[j]
+            K[a, 6:] = K[6:, a] = Qb[i, j]
+        A[6:, 6:] = wsum * np.eye(3)
+        K[6:, 6:] = Qbb
+        S = A - K + acc['rank_one']
         if damping:
             S = S + damping * np.diag(np.diag(A))
-        # rhs = -g_p + sum C (P g_u + q g_l),  P = M⁻¹ - M⁻¹u uᵀM⁻¹ / uMu.
-        g_uv = g_u @ V
-        Pg = dinv * g_uv - Mu_v * (np.einsum('ni,ni->n', Mu_v, g_uv) / uMu)[:, None]
-        Pg += Mu_v * (g_l / uMu)[:, None]
-        rhs = -g_p + flat @ Pg.reshape(-1)
-        return S, rhs, (V, dinv, Mu_v, uMu, Cv, g_uv, g_l)
+        # rhs = -dL/dp + sum_k C_k P g: rows (i, j) are sum w γ_i u_j - w r_i δ_j.
+        R = acc['rhs']
+        coupled = R[:3, :3] + R[3:, 3:].T
+        rhs = np.concatenate([(wur.T + coupled)[UPPER], wr + acc['rhs_b']])
+        return S, rhs, 0.5 * float(np.trace(wrr)), wuu / wsum
 
-    def step(self, p, u, damping):
-        """Damped Newton step: new (p, u) with u projected back onto the sphere."""
-        S, rhs, (V, dinv, Mu_v, uMu, Cv, g_uv, g_l) = self.schur(p, u, damping)
-        dp = np.linalg.solve(S, rhs)
-        a = -g_uv - np.tensordot(dp, Cv, axes=1)                   # in the V basis
-        du_v = dinv * a - Mu_v * (np.einsum('ni,ni->n', Mu_v, a) / uMu)[:, None]
-        du_v -= Mu_v * (g_l / uMu)[:, None]
-        return p + dp, _normalise(u + du_v @ V.T), dp
+    def schur(self, p, ut, damping=0.0):
+        """
+        Reduced 9x9 Newton system ``S dp = rhs`` at (p, u), and the objective.
+
+        :param ut: (3, N) directions by component.
+        :returns: (S (9, 9), rhs (9,), objective, weighted direction scatter (3, 3)).
+        """
+        basis = self._basis(p)
+        acc = self._new_accumulator()
+        for s in self._blocks():
+            self._accumulate(acc, basis, self.yt[:, s], self.w[s], ut[:, s], damping)
+        return self._system(acc, basis, damping)
+
+    def step(self, p, ut, dp, damping):
+        """
+        Back-substitute ``dp`` for the direction steps, move, and evaluate the new point.
+
+        One pass over the data: per block the old point's KKT pieces are recomputed,
+        the directions stepped and projected back onto the sphere, and the new
+        point's moments accumulated.
+
+        :returns: (u_new (3, N), change, system at the new point as :meth:`schur`),
+            where ``change`` is sum_k w_k |J_k dp + T du_k|², the linearised change of
+            the residuals (objective units).
+        """
+        basis = self._basis(p)
+        dT, db = unpack(dp)
+        basis_new = self._basis(p + dp)
+        T, _, _, V, TV = basis
+        u_new = np.empty_like(ut)
+        acc = self._new_accumulator()
+        change = 0.0
+        for s in self._blocks():
+            y, w, u = self.yt[:, s], self.w[s], ut[:, s]
+            r, wr, g_uv, g_l, dinv, Mu_v, uMu = self._local(basis, y, w, u, damping)
+            Jdp = dT @ u + db[:, None]
+            a = -g_uv - w * (TV.T @ Jdp - V.T @ (dT.T @ r))
+            du = V @ (dinv * a - Mu_v * ((np.sum(Mu_v * a, axis=0) + g_l) / uMu))
+            moved = Jdp + T @ du
+            change += float(w @ np.sum(moved * moved, axis=0))
+            un = u_new[:, s]
+            np.add(u, du, out=un)
+            un /= np.sqrt(np.sum(un * un, axis=0))
+            self._accumulate(acc, basis_new, y, w, un, 0.0)
+        return u_new, change, self._system(acc, basis_new, 0.0)
 
 
-def _initial_directions(y, T, b):
-    return _normalise(np.linalg.solve(T, (y - b).T).T)
+def _initial_directions(yt, T, b):
+    """Directions (3, N) of the readings seen through the start (T, b)."""
+    Tinv = np.linalg.inv(T)
+    u = np.empty_like(yt)
+    for s in range(0, yt.shape[1], BLOCK):
+        v = u[:, s:s + BLOCK]
+        np.matmul(Tinv, yt[:, s:s + BLOCK] - b[:, None], out=v)
+        v /= np.sqrt(np.sum(v * v, axis=0))
+    return u
 
 
-def fit_ml(readings, weights=None, radius=1.0, start=None, max_iter=100, tol=1e-12):
+def fit_ml(readings, weights=None, radius=1.0, start=None, max_iter=100,
+           tol=STEP_TOLERANCE):
     """
     Maximum-likelihood calibration by damped Newton iteration (Sun & Xu 2020).
+
+    The readings are centred and scaled to unit RMS radius first, so the iteration,
+    its damping and its convergence test do not depend on the unit of the readings
+    (m/s², g, counts) nor on an offset. Convergence is declared when the last
+    undamped Newton step changed the residuals by at most ``tol`` noise standard
+    deviations in total (sum_k w_k |Δr_k|² <= tol² sigma², i.e. the step is below
+    ``tol`` standard errors of every parameter), or by no more than the roundoff of
+    the readings (noise-free data), and the reduced Hessian at the result is positive
+    definite (a minimum, not a saddle).
 
     :param readings: (N, 3) raw readings (window means or samples), N >= 10.
     :param weights: (N,) relative weights, e.g. samples per window (default 1).
@@ -177,7 +301,7 @@ def fit_ml(readings, weights=None, radius=1.0, start=None, max_iter=100, tol=1e-
     :param radius: magnitude of the true vectors (local gravity, same unit as readings).
     :param start: optional (T, bias) start; default the ellipsoid fit (eq. 16-18).
     :param max_iter: iteration limit.
-    :param tol: relative objective change and step size that count as converged.
+    :param tol: largest last step, in standard errors, that counts as converged.
     :returns: MLResult with T dimensionless and bias in reading units.
     :raises CalibrationError: too few observations or a degenerate geometry.
     """
@@ -189,58 +313,86 @@ def fit_ml(readings, weights=None, radius=1.0, start=None, max_iter=100, tol=1e-
             f'the 9-parameter ML model needs at least 10 observations, got {n}')
     w = np.ones(n) if weights is None else np.asarray(weights, dtype=float).reshape(n)
     w = w / np.mean(w)
-    y = y_raw / radius
+    # Normalised readings by component: yt = (y_raw - centre)ᵀ / spread, so that
+    # yt = (radius / spread) T u + b_n whatever the unit and offset of the readings.
+    centre = (w @ y_raw) / n
+    yt = np.ascontiguousarray(y_raw.T)
+    yt -= centre[:, None]
+    spread = float(np.sqrt((w @ np.sum(yt * yt, axis=0)) / n))
+    if not (np.isfinite(spread) and spread > 0):
+        raise CalibrationError('all observations are identical (or not finite)')
+    yt /= spread
     if start is None:
-        T0, b0 = fit_ellipsoid(y, w)
+        T0, b0 = fit_ellipsoid_columns(yt, w)
     else:
-        T0, b0 = np.asarray(start[0], float), np.asarray(start[1], float) / radius
-    problem = _Problem(y, w)
+        T0 = np.asarray(start[0], float) * (radius / spread)
+        b0 = (np.asarray(start[1], float) - centre) / spread
+    problem = _Problem(yt, w)
     p = pack(np.triu(T0), b0)
-    u = _initial_directions(y, unpack(p)[0], b0)
-    f = problem.objective(p, u)
+    u = _initial_directions(yt, unpack(p)[0], b0)
+    S, rhs, f, scatter = problem.schur(p, u)
     trace = [f]
+    eps = np.finfo(float).eps
+    floor = (PRECISION_FACTOR * eps) ** 2 * problem.data_energy
     damping, converged, it = 0.0, False, 0
+    system = None
     for it in range(1, max_iter + 1):
         while True:
+            dp = None
             try:
-                p_new, u_new, dp = problem.step(p, u, damping)
-                f_new = problem.objective(p_new, u_new)
+                if damping:
+                    S_d, rhs_d, _, _ = problem.schur(p, u, damping)
+                else:
+                    S_d, rhs_d = S, rhs
+                dp = np.linalg.solve(S_d, rhs_d)
+                u_new, change, system = problem.step(p, u, dp, damping)
+                f_new = system[2]
             except np.linalg.LinAlgError:
                 f_new = np.inf
-            if np.isfinite(f_new) and f_new <= f * (1 + 1e-12) + 1e-300:
-                damping = damping / 10.0 if damping > 1e-9 else 0.0
+            # Accept any decrease, and increases no larger than the objective's roundoff.
+            slack = PRECISION_FACTOR * eps * np.sqrt(2.0 * f * problem.data_energy) + floor
+            if np.isfinite(f_new) and f_new <= f + slack and np.all(np.isfinite(dp)):
                 break
             damping = max(damping * 10.0, 1e-6)
             if damping > 1e8:
                 break
         if damping > 1e8:
             break
-        small_step = np.linalg.norm(dp) <= np.sqrt(tol) * (1.0 + np.linalg.norm(p))
-        small_change = f - f_new <= tol * max(f, 1e-300)
-        p, u, f = p_new, u_new, f_new
+        small = (not damping and
+                 change <= tol ** 2 * 2.0 * min(f, f_new) / (n - 9) + floor)
+        p, u = p + dp, u_new
+        S, rhs, f, scatter = system
         trace.append(f)
-        if small_step and small_change:
-            converged = True
+        damping = damping / 10.0 if damping > 1e-9 else 0.0
+        if small:
+            converged = _positive_definite(S)
             break
     T, b = unpack(p)
     if np.any(np.diag(T) <= 0) or not np.all(np.isfinite(p)):
         raise CalibrationError('ML iteration diverged to a non-physical T; '
                                'the observations do not constrain the model')
-    check_coverage(u, w)
-    S, _, _ = problem.schur(p, u)
+    check_scatter(scatter)
     dof = n - 9
     sigma2 = 2.0 * f / dof
     try:
         cov = sigma2 * np.linalg.inv(S)
     except np.linalg.LinAlgError:
         cov = np.full((9, 9), np.nan)
-    scale = np.r_[np.ones(6), np.full(3, radius)]
-    cov = cov * np.outer(scale, scale)
+    unit = np.r_[np.full(6, spread / radius), np.full(3, spread)]
+    cov = cov * np.outer(unit, unit)
     return MLResult(
-        T=T, bias=b * radius, directions=u, covariance=cov,
-        sigma=float(np.sqrt(sigma2) * radius), objective=f * radius ** 2,
-        iterations=it, converged=converged, seconds=time.perf_counter() - t0,
-        trace=[v * radius ** 2 for v in trace])
+        T=T * (spread / radius), bias=centre + b * spread, directions=u.T, covariance=cov,
+        sigma=float(np.sqrt(sigma2) * spread), objective=f * spread ** 2,
+        iterations=it, converged=bool(converged), seconds=time.perf_counter() - t0,
+        trace=[v * spread ** 2 for v in trace])
+
+
+def _positive_definite(S):
+    try:
+        np.linalg.cholesky(0.5 * (S + S.T))
+    except np.linalg.LinAlgError:
+        return False
+    return True
 
 
 def fit_ml_bias_corrected(readings, weights=None, radius=1.0, replicates=64, seed=0, **kw):
