@@ -10,7 +10,7 @@ UPPER = np.triu_indices(3)
 BLOCK = 8192
 """Observations processed at once by the blocked loops (temporaries stay in cache)."""
 
-_BATCH = 1024
+_BATCH = 512
 """Columns per BLAS call in :func:`cross_product` (small calls stay single-threaded)."""
 
 
@@ -33,6 +33,16 @@ def cross_product(a, b):
     if m < n:
         out += a[:, m:] @ b[:, m:].T
     return out
+
+
+def apply(A, x):
+    """
+    Return ``A @ x`` for a small matrix A (p, 3) and wide x (3, n), without BLAS.
+
+    A BLAS product with a long dimension may start OpenBLAS threads (see
+    :func:`cross_product`); einsum's own loop is as fast for three rows.
+    """
+    return np.einsum('ij,jn->in', A, x)
 
 
 def _design(x):
@@ -82,7 +92,7 @@ def fit_ellipsoid_columns(yt, w, radius=1.0):
     """
     n = yt.shape[1]
     wsum = float(np.sum(w))
-    centre0 = (yt @ w) / wsum
+    centre0 = np.einsum('in,n->i', yt, w) / wsum
     scale0 = 0.0
     for s in range(0, n, BLOCK):
         d = yt[:, s:s + BLOCK] - centre0[:, None]
@@ -127,7 +137,7 @@ def fit_ellipsoid_columns(yt, w, radius=1.0):
             'orientations do not span three dimensions; tilt the sensor out of the plane')
     scatter = np.zeros((3, 3))
     for s in range(0, n, BLOCK):
-        u = R @ (yt[:, s:s + BLOCK] - bias[:, None])
+        u = apply(R, yt[:, s:s + BLOCK] - bias[:, None])
         u /= np.sqrt(np.sum(u * u, axis=0))
         scatter += cross_product(u * w[s:s + BLOCK], u)
     check_scatter(scatter / wsum)

@@ -24,7 +24,8 @@ class GNResult:
     :param scale: (3,) k_i of eq. 11, dimensionless true per raw (T = diag(1 / scale)).
     :param bias: (3,) d_i, reading units.
     :param covariance: (6, 6) covariance of (1/k_x, 1/k_y, 1/k_z, d_x, d_y, d_z).
-    :param trace: sum of squared residuals f_k after each iteration.
+    :param trace: sum of squared residuals f_k after each iteration (dimensionless:
+        f_k = |k (y_k - d)|² / g² - 1).
     """
 
     scale: np.ndarray
@@ -62,30 +63,52 @@ def _axis_aligned_start(y, w):
     return 1.0 / half, (hi + lo) / 2.0
 
 
-def fit_gn(readings, weights=None, radius=1.0, max_iter=100, tol=1e-12):
+STEP_TOLERANCE = 1e-6
+"""Converged when the last step moved the fit by at most this many standard errors."""
+
+PRECISION_FACTOR = 1e3
+"""Steps below this many machine epsilons of the normalised residuals are roundoff."""
+
+
+def fit_gn(readings, weights=None, radius=1.0, max_iter=100, tol=STEP_TOLERANCE):
     """
     Six-parameter Gauss-Newton calibration (Gui Yi 2016, eq. 11-17).
 
     The paper starts from bias 0 and scale 1; that start only works for readings
-    already near SI units, so the iteration here starts from an axis-aligned
-    algebraic ellipsoid fit (falling back to the min/max of each axis) and uses
-    Levenberg-Marquardt damping when a plain Gauss-Newton step does not reduce the
-    residual.
+    already near SI units. Here the readings are first centred and scaled to unit RMS
+    radius (so nothing depends on their unit or offset: m/s², g, counts), the
+    iteration starts from an axis-aligned algebraic ellipsoid fit (falling back to the
+    min/max of each axis) and uses Levenberg-Marquardt damping when a plain
+    Gauss-Newton step does not reduce the residual. Convergence: the last undamped
+    step changed the residuals f_k by at most ``tol`` noise standard deviations in
+    total (sum w Δf² <= tol² sigma², i.e. below ``tol`` standard errors of every
+    parameter), or by no more than their roundoff (six exact observations or
+    noise-free data), and the normal matrix is positive definite.
 
     :param readings: (N, 3) raw readings, N >= 6 (the six faces).
     :param weights: (N,) observation weights (default 1).
     :param radius: gravity magnitude in reading units.
+    :param max_iter: iteration limit.
+    :param tol: largest last step, in standard errors, that counts as converged.
     :returns: GNResult.
     :raises CalibrationError: too few observations or a degenerate geometry.
     """
     t0 = time.perf_counter()
-    y = np.asarray(readings, dtype=float).reshape(-1, 3) / radius
-    n = len(y)
+    y_raw = np.asarray(readings, dtype=float).reshape(-1, 3)
+    n = len(y_raw)
     if n < 6:
         raise CalibrationError(
             f'the 6-parameter model needs at least 6 observations (six faces), got {n}')
     w = np.ones(n) if weights is None else np.asarray(weights, float).reshape(n)
     w = w / np.mean(w)
+    # Normalised readings y = (y_raw - centre) / spread; the model |k (y - d)| = 1
+    # there maps back to k_raw = k radius / spread, d_raw = centre + spread d.
+    centre = (w @ y_raw) / n
+    y = y_raw - centre
+    spread = float(np.sqrt(np.sum(w * np.sum(y * y, axis=1)) / n))
+    if not (np.isfinite(spread) and spread > 0):
+        raise CalibrationError('all observations are identical (or not finite)')
+    y /= spread
     k, d = _axis_aligned_start(y, w)
 
     def residual(k, d):
@@ -95,13 +118,21 @@ def fit_gn(readings, weights=None, radius=1.0, max_iter=100, tol=1e-12):
         e = y - d
         return np.column_stack([-2.0 * e * k ** 2, 2.0 * e ** 2 * k])   # eq. 15: (d, k)
 
+    def roundoff_scale(k, d):
+        return float(np.sum(w * (1.0 + np.sum((k * (y - d)) ** 2, axis=1)) ** 2))
+
+    eps = np.finfo(float).eps
     f = residual(k, d)
     cost = float(np.sum(w * f ** 2))
     trace, damping, converged, it = [cost], 0.0, False, 0
+    dof = n - 6
     for it in range(1, max_iter + 1):
         J = jacobian(k, d)
         N = J.T @ (w[:, None] * J)                                      # a_ij, eq. 17
         g = J.T @ (w * -f)                                              # A_i, eq. 17
+        scale = roundoff_scale(k, d)
+        floor = (PRECISION_FACTOR * eps) ** 2 * scale
+        slack = PRECISION_FACTOR * eps * np.sqrt(cost * scale) + floor
         while True:
             try:
                 delta = np.linalg.solve(N + damping * np.diag(np.diag(N)), g)
@@ -110,19 +141,20 @@ def fit_gn(readings, weights=None, radius=1.0, max_iter=100, tol=1e-12):
             d_new, k_new = d + delta[:3], k + delta[3:]
             f_new = residual(k_new, d_new)
             cost_new = float(np.sum(w * f_new ** 2))
-            if np.isfinite(cost_new) and cost_new <= cost * (1 + 1e-12) + 1e-300:
-                damping = damping / 10.0 if damping > 1e-9 else 0.0
+            if np.isfinite(cost_new) and cost_new <= cost + slack:
                 break
             damping = max(damping * 10.0, 1e-6)
             if damping > 1e8:
                 break
         if damping > 1e8:
             break
-        small = np.linalg.norm(delta) <= np.sqrt(tol) * (1 + np.linalg.norm(np.r_[k, d]))
-        flat = cost - cost_new <= tol * max(cost, 1e-300)
+        change = float(delta @ N @ delta)                # sum_k w_k (J_k delta)²
+        sigma2 = min(cost, cost_new) / dof if dof > 0 else 0.0
+        small = not damping and change <= tol ** 2 * sigma2 + floor
         k, d, f, cost = k_new, d_new, f_new, cost_new
         trace.append(cost)
-        if small and flat:
+        damping = damping / 10.0 if damping > 1e-9 else 0.0
+        if small:
             converged = True
             break
     if np.any(k <= 0) or not np.all(np.isfinite(np.r_[k, d])):
@@ -130,18 +162,23 @@ def fit_gn(readings, weights=None, radius=1.0, max_iter=100, tol=1e-12):
                                'scale and bias (record all six faces)')
     J = jacobian(k, d)
     info = J.T @ (w[:, None] * J)
+    try:
+        np.linalg.cholesky(info)
+    except np.linalg.LinAlgError:
+        converged = False
     # Six observations determine the six parameters exactly: no residual is left to
     # estimate the noise from, so the covariance is unknown (NaN), not zero.
-    sigma2 = cost / (n - 6) if n > 6 else np.nan
+    sigma2 = cost / dof if dof > 0 else np.nan
     try:
         cov_dk = sigma2 * np.linalg.inv(info)
     except np.linalg.LinAlgError:
         cov_dk = np.full((6, 6), np.nan)
-    # Reorder to (1/k, d) and restore reading units.
+    # Reorder to (1/k, d) and restore reading units: 1/k_raw = spread / (radius k).
     jac = np.zeros((6, 6))
-    jac[:3, 3:] = np.diag(-1.0 / k ** 2)
-    jac[3:, :3] = np.eye(3) * radius
+    jac[:3, 3:] = np.diag(-spread / (radius * k ** 2))
+    jac[3:, :3] = np.eye(3) * spread
     cov = jac @ cov_dk @ jac.T
-    return GNResult(scale=k, bias=d * radius, covariance=cov, iterations=it,
-                    converged=converged, seconds=time.perf_counter() - t0,
-                    trace=[c * radius ** 4 for c in trace])
+    return GNResult(scale=k * radius / spread, bias=centre + d * spread, covariance=cov,
+                    iterations=it, converged=bool(converged),
+                    seconds=time.perf_counter() - t0,
+                    trace=trace)

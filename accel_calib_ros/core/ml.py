@@ -22,7 +22,8 @@ import time
 
 import numpy as np
 
-from .ellipsoid import BLOCK, check_scatter, cross_product, fit_ellipsoid_columns, UPPER
+from .ellipsoid import (
+    apply, BLOCK, check_scatter, cross_product, fit_ellipsoid_columns, UPPER)
 from .errors import CalibrationError
 
 PARAMETER_NAMES = ('T_xx', 'T_xy', 'T_xz', 'T_yy', 'T_yz', 'T_zz', 'b_x', 'b_y', 'b_z')
@@ -118,7 +119,7 @@ class _Problem:
         self.w = w
         self.n = yt.shape[1]
         self.block = int(block)
-        self.data_energy = float(np.sum(w * np.sum(yt * yt, axis=0)))
+        self.data_energy = float(np.einsum('n,n->', w, np.sum(yt * yt, axis=0)))
 
     def _blocks(self):
         for start in range(0, self.n, self.block):
@@ -134,12 +135,12 @@ class _Problem:
     def _local(basis, y, w, u, damping):
         """Residuals and the per-observation (V basis) pieces of the KKT solve."""
         T, b, evals, V, TV = basis
-        Tu = T @ u
+        Tu = apply(T, u)
         r = y - Tu - b[:, None]
         wr = w * r
         lam = np.sum(Tu * wr, axis=0)                          # u_kᵀ Tᵀ w_k r_k
-        u_v = V.T @ u
-        g_uv = lam * u_v - TV.T @ wr                            # Vᵀ dL/du_k
+        u_v = apply(V.T, u)
+        g_uv = lam * u_v - apply(TV.T, wr)                           # Vᵀ dL/du_k
         g_l = 0.5 * (np.sum(u * u, axis=0) - 1.0)               # dL/dlambda_k
         dinv = 1.0 / ((evals + damping * np.mean(evals))[:, None] * w + lam)
         Mu_v = dinv * u_v                                       # M_k⁻¹ u_k, V basis
@@ -164,8 +165,8 @@ class _Problem:
         np.multiply(r[:, None], r[None], out=Z[25:34].reshape(3, 3, n))
         acc['moments'] += cross_product(X, Z)
         # Rank-one part: C_k M_k⁻¹ u_k (9,) per observation, over u_kᵀ M_k⁻¹ u_k.
-        alpha = TV @ Mu_v
-        beta = V @ Mu_v
+        alpha = apply(TV, Mu_v)
+        beta = apply(V, Mu_v)
         H = np.empty((9, n))
         np.multiply(u[_COL], alpha[_ROW], out=H[:6])
         H[:6] -= r[_ROW] * beta[_COL]
@@ -174,8 +175,8 @@ class _Problem:
         # Right-hand side: sum_k C_k (P_k g_u + q_k g_l).
         Pg = dinv * g_uv - Mu_v * ((np.sum(Mu_v * g_uv, axis=0) - g_l) / uMu)
         G = np.empty((6, n))
-        np.multiply(w, TV @ Pg, out=G[:3])
-        np.negative(V @ Pg, out=G[3:])
+        np.multiply(w, apply(TV, Pg), out=G[:3])
+        np.negative(apply(V, Pg), out=G[3:])
         acc['rank_one'] += cross_product(H / uMu, H)
         acc['rhs'] += cross_product(G, np.concatenate([u, wr]))
         acc['rhs_b'] += np.sum(G[:3], axis=1)
@@ -258,11 +259,11 @@ class _Problem:
         for s in self._blocks():
             y, w, u = self.yt[:, s], self.w[s], ut[:, s]
             r, wr, g_uv, g_l, dinv, Mu_v, uMu = self._local(basis, y, w, u, damping)
-            Jdp = dT @ u + db[:, None]
-            a = -g_uv - w * (TV.T @ Jdp - V.T @ (dT.T @ r))
-            du = V @ (dinv * a - Mu_v * ((np.sum(Mu_v * a, axis=0) + g_l) / uMu))
-            moved = Jdp + T @ du
-            change += float(w @ np.sum(moved * moved, axis=0))
+            Jdp = apply(dT, u) + db[:, None]
+            a = -g_uv - w * (apply(TV.T, Jdp) - apply(V.T @ dT.T, r))
+            du = apply(V, dinv * a - Mu_v * ((np.sum(Mu_v * a, axis=0) + g_l) / uMu))
+            moved = Jdp + apply(T, du)
+            change += float(np.einsum('n,n->', w, np.sum(moved * moved, axis=0)))
             un = u_new[:, s]
             np.add(u, du, out=un)
             un /= np.sqrt(np.sum(un * un, axis=0))
@@ -276,7 +277,7 @@ def _initial_directions(yt, T, b):
     u = np.empty_like(yt)
     for s in range(0, yt.shape[1], BLOCK):
         v = u[:, s:s + BLOCK]
-        np.matmul(Tinv, yt[:, s:s + BLOCK] - b[:, None], out=v)
+        v[...] = apply(Tinv, yt[:, s:s + BLOCK] - b[:, None])
         v /= np.sqrt(np.sum(v * v, axis=0))
     return u
 
@@ -315,10 +316,10 @@ def fit_ml(readings, weights=None, radius=1.0, start=None, max_iter=100,
     w = w / np.mean(w)
     # Normalised readings by component: yt = (y_raw - centre)ᵀ / spread, so that
     # yt = (radius / spread) T u + b_n whatever the unit and offset of the readings.
-    centre = (w @ y_raw) / n
+    centre = np.einsum('n,ni->i', w, y_raw) / n
     yt = np.ascontiguousarray(y_raw.T)
     yt -= centre[:, None]
-    spread = float(np.sqrt((w @ np.sum(yt * yt, axis=0)) / n))
+    spread = float(np.sqrt(np.einsum('n,n->', w, np.sum(yt * yt, axis=0)) / n))
     if not (np.isfinite(spread) and spread > 0):
         raise CalibrationError('all observations are identical (or not finite)')
     yt /= spread
