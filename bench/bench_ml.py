@@ -6,10 +6,13 @@ Prints figures, asserts nothing. Sections (pick with --only NAME):
   paper    Sun & Xu's simulation: LS (ellipsoid) vs ML, e_T/e_b (eq. 20), RMS vs CRB
   bias     plain ML vs bootstrap bias-corrected ML at N = 300 and N = 3000
   gn       Gui Yi's six-face session with a diagonal-error sensor
-  speed    ML solve time for N = 1e3..1e5, scaling exponent, vs scipy least_squares
-           (sparse) and a dense Newton step, measured in the same run
+  speed    ML solve time at N = 1e4, 1e5, 1e6 samples, its ratio to ten numpy passes
+           (10 x (y * y).sum(axis=1) over the same (1e6, 3) array), the scaling exponent
+           1e4 -> 1e6, and the largest relative difference to the previous solver
+           (bench/ml_reference.py), all measured in the same run
+  peers    ML vs scipy least_squares (sparse) and a dense Newton step, N = 1e3..1e4
   real     public recordings: windows, imu_tk agreement, per-sample and held-out residuals
-Usage: python bench/bench_ml.py [--only paper,speed] [--trials N]
+Usage: python bench/bench_ml.py [--only paper,speed] [--trials N] [--quick]
 """
 
 import argparse
@@ -21,7 +24,7 @@ from accel_calib_ros.core.calibration import calibrate, gravity_residuals
 from accel_calib_ros.core.ellipsoid import fit_ellipsoid
 from accel_calib_ros.core.gn import fit_gn
 from accel_calib_ros.core.ml import (
-    cramer_rao_bound, fit_ml, fit_ml_bias_corrected, pack, unpack)
+    _Problem, cramer_rao_bound, fit_ml, fit_ml_bias_corrected, pack, unpack)
 from accel_calib_ros.core.simulate import (
     face_directions, random_directions, sun_xu_directions)
 from accel_calib_ros.core.windows import detect_static_windows
@@ -31,6 +34,7 @@ from scipy.sparse import lil_matrix
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), '..', 'test'))
 import peer_data  # noqa: E402, I100
+from ml_reference import fit_ml_reference  # noqa: E402, I100
 
 T_PAPER = np.array([[1.15, 0.0602, -0.0401], [0, 1.0985, 0.0575], [0, 0, 1.0978]])
 B_PAPER = np.array([0.1, 0.15, 0.2])
@@ -201,42 +205,94 @@ def _dense_newton_step(y, T, b):
     return time.perf_counter() - t0
 
 
-def bench_speed(_trials):
-    print('\n== Speed: ML solve (ellipsoid start + Newton to convergence), 2-core machine')
+def bench_peers(_trials):
+    print('\n== Peers: ML solve vs scipy least_squares (sparse) and one dense Newton step')
     rng = np.random.default_rng(5)
-    sizes = [1000, 3000, 10000, 30000, 100000]
-    times = []
     print(f'{"N":>8s}{"ML s":>10s}{"iters":>7s}{"scipy sparse s":>16s}{"ratio":>8s}'
           f'{"dense step s":>14s}{"ML step s":>11s}{"ratio":>8s}')
-    for n in sizes:
+    for n in (1000, 3000, 10000):
         u, y = _ml_problem(n, rng)
-        runs = []
-        for _ in range(3):
-            t0 = time.perf_counter()
-            fit = fit_ml(y)
-            runs.append(time.perf_counter() - t0)
-        t_ml = min(runs)
-        times.append(t_ml)
+        t_ml, fit = _best_time(lambda: fit_ml(y), 3)
         line = f'{n:8d}{t_ml:10.4f}{fit.iterations:7d}'
-        if n <= 10000:
-            t_sp, (T_sp, _) = _scipy_sparse(y, fit_ellipsoid(y))
-            agree = np.abs(T_sp - fit.T).max()
-            line += f'{t_sp:16.3f}{t_sp / t_ml:8.1f}'
-            if agree > 1e-6:
-                line += f' (scipy differs by {agree:.1e})'
-        else:
-            line += f'{"-":>16s}{"-":>8s}'
+        t_sp, (T_sp, _) = _scipy_sparse(y, fit_ellipsoid(y))
+        agree = np.abs(T_sp - fit.T).max()
+        line += f'{t_sp:16.3f}{t_sp / t_ml:8.1f}'
+        if agree > 1e-6:
+            line += f' (scipy differs by {agree:.1e})'
         if n <= 1000:
             t_dense = _dense_newton_step(y, fit.T, fit.bias)
-            t0 = time.perf_counter()
-            from accel_calib_ros.core.ml import _Problem
-            _Problem(y, np.ones(n)).step(pack(fit.T, fit.bias), fit.directions, 0.0)
-            t_step = time.perf_counter() - t0
+            problem = _Problem(np.ascontiguousarray(y.T), np.ones(n))
+            p, ut = pack(fit.T, fit.bias), np.ascontiguousarray(fit.directions.T)
+
+            def newton_step():
+                S, rhs, _, _ = problem.schur(p, ut)
+                return problem.step(p, ut, np.linalg.solve(S, rhs), 0.0)
+
+            t_step, _ = _best_time(newton_step, 5)
             line += f'{t_dense:14.3f}{t_step:11.5f}{t_dense / t_step:8.0f}'
         print(line)
-    slope = np.polyfit(np.log(sizes), np.log(times), 1)[0]
-    print(f'scaling exponent (log time vs log N): {slope:.2f}  '
-          f'(1 = linear); N = 1e5 in {times[-1]:.3f} s (target < 0.5 s)')
+
+
+def _best_time(func, repeats):
+    """Smallest wall time of ``repeats`` calls (the machine is shared) and the last result."""
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        result = func()
+        best = min(best, time.perf_counter() - t0)
+    return best, result
+
+
+def numpy_passes(y, passes=10):
+    """
+    Run the speed reference: ``passes`` times ``(y * y).sum(axis=1)`` over (N, 3) y.
+
+    Each pass reads the readings once, writes an (N, 3) product and reduces it to
+    the (N,) squared norms: one elementwise pass and one reduction, the kind of
+    work any per-sample method has to do at least once.
+    """
+    for _ in range(passes):
+        (y * y).sum(axis=1)
+
+
+def bench_speed(trials, quick=False):
+    print('\n== Speed: ML solve (ellipsoid start + Newton to convergence) at 1e4..1e6 samples')
+    print('Data: random orientations, Sun & Xu T and b, noise 0.01 (readings in g, '
+          'radius 1); the smaller sets are the first N rows of the 1e6 set.')
+    print('Reference: ten numpy passes = 10 x (y * y).sum(axis=1) over the same (1e6, 3) '
+          'array. Times: best of repeated runs in this process.')
+    rng = np.random.default_rng(5)
+    u_all, y_all = _ml_problem(10 ** 6, rng)
+    repeats = 2 if quick else 3
+    t_ref, _ = _best_time(lambda: numpy_passes(y_all), 7)
+    sizes = [10 ** 4, 10 ** 5, 10 ** 6]
+    times = []
+    print(f'{"N":>9s}{"ML s":>9s}{"iters":>6s}{"conv":>6s}{"old s":>9s}{"speed-up":>9s}'
+          f'{"max rel diff":>14s}{"max diff/SE":>13s}{"cov rel diff":>14s}')
+    worst = 0.0
+    for n in sizes:
+        y = y_all[:n]
+        t_ml, fit = _best_time(lambda: fit_ml(y), repeats)
+        times.append(t_ml)
+        line = f'{n:9d}{t_ml:9.3f}{fit.iterations:6d}{str(fit.converged):>6s}'
+        if quick and n > 10 ** 5:
+            print(line + f'{"(old solver skipped with --quick)":>50s}')
+            continue
+        t_old, old = _best_time(lambda: fit_ml_reference(y), 1)
+        p_new, p_old = pack(fit.T, fit.bias), pack(old.T, old.bias)
+        rel = float(np.max(np.abs(p_new - p_old) / np.abs(p_old)))
+        worst = max(worst, rel)
+        in_se = float(np.max(np.abs(p_new - p_old) / np.sqrt(np.diag(fit.covariance))))
+        cov = float(np.max(np.abs(fit.covariance - old.covariance))
+                    / np.max(np.abs(old.covariance)))
+        print(line + f'{t_old:9.3f}{t_old / t_ml:9.1f}{rel:14.1e}{in_se:13.1e}{cov:14.1e}')
+    exponent = np.log(times[-1] / times[0]) / np.log(sizes[-1] / sizes[0])
+    print(f'ten numpy passes over (1e6, 3): {t_ref:.4f} s')
+    print(f'ML at 1e6 / ten numpy passes: {times[-1] / t_ref:.2f}  (target <= 10)')
+    print(f'scaling exponent 1e4 -> 1e6 (log time / log N): {exponent:.3f}  (target <= 1.05)')
+    print(f'max relative difference of T and b to the old solver: {worst:.1e}  '
+          '(target <= 1e-9; covariance differs ~1e-6 relatively: the old solver used '
+          'the multiplier (Tᵀu)·r in the Hessian instead of (Tu)·r)')
 
 
 def _per_sample_residual(cal, samples, windows, gravity, select):
@@ -305,16 +361,26 @@ def bench_real(_trials):
 
 
 SECTIONS = {'paper': bench_paper, 'bias': bench_bias, 'gn': bench_gn, 'speed': bench_speed,
-            'real': bench_real}
+            'peers': bench_peers, 'real': bench_real}
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--only', default=','.join(SECTIONS))
-    parser.add_argument('--trials', type=int, default=200)
+    parser.add_argument('--trials', type=int, default=None,
+                        help='Monte Carlo trials (default 200, 40 with --quick)')
+    parser.add_argument('--quick', action='store_true',
+                        help='fewer trials, no scipy/dense peers, old solver only to 1e5')
     args = parser.parse_args()
-    for name in args.only.split(','):
-        SECTIONS[name](args.trials)
+    trials = args.trials or (40 if args.quick else 200)
+    names = args.only.split(',')
+    if args.quick and args.only == ','.join(SECTIONS):
+        names.remove('peers')
+    for name in names:
+        if name == 'speed':
+            bench_speed(trials, args.quick)
+        else:
+            SECTIONS[name](trials)
 
 
 if __name__ == '__main__':
