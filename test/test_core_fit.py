@@ -46,7 +46,7 @@ def test_schur_step_equals_dense_newton_step():
     u = u / np.linalg.norm(u, axis=1, keepdims=True) + 0.01 * rng.standard_normal(u.shape)
     w = rng.uniform(0.5, 2.0, len(y))
     problem = _Problem(np.ascontiguousarray(y.T), w / w.mean(), block=4)
-    S, rhs, _, _ = problem.schur(p, u.T)
+    S, rhs = problem.schur(p, u.T)[:2]
     dp = np.linalg.solve(S, rhs)
     u_new = problem.step(p, u.T, dp, 0.0)[0].T
 

@@ -10,8 +10,11 @@ unknowns are the 9 entries of ``T`` and ``b`` plus one unit vector ``u_k`` and o
 Lagrange multiplier ``lambda_k`` per observation (eq. 12). Newton's method on this
 Lagrangian has a block-arrow Hessian (eq. 14-15): a dense 9x9 global block, a 4x4
 block per observation and 9x4 couplings. Each iteration eliminates the per-observation
-blocks in closed form (Schur complement) and solves one 9x9 system, so the cost is
-O(N) vectorised numpy work instead of O(N³) for the dense (9 + 4N)² Hessian.
+blocks in closed form (Schur complement) and solves one 9x9 system; the sums over
+observations are accumulated block by block from per-observation moments (no coupling
+matrices are formed), so one iteration is a few passes over the data. The readings are
+centred and scaled first, so nothing depends on their unit; convergence is judged by
+the Newton decrement against the fit's own noise level (see :func:`fit_ml`).
 Levenberg-Marquardt damping with a step acceptance test on the ML objective makes
 it converge from the ellipsoid start on real data; near the optimum it is the
 undamped Newton iteration of the paper and converges quadratically.
@@ -19,6 +22,7 @@ undamped Newton iteration of the paper and converges quadratically.
 
 from dataclasses import dataclass, field
 import time
+from typing import NamedTuple
 
 import numpy as np
 
@@ -54,7 +58,7 @@ def _jacobian(u):
 _ROW, _COL = UPPER
 
 STEP_TOLERANCE = 1e-6
-"""Converged when the last Newton step moved the fit by at most this many standard errors."""
+"""Converged when the next Newton step would move the fit by at most this many std errors."""
 
 PRECISION_FACTOR = 1e3
 """Steps below this many machine epsilons of the (normalised) readings are roundoff."""
@@ -76,8 +80,9 @@ class MLResult:
     :param sigma: estimated per-weight noise standard deviation, reading units.
     :param objective: final value of sum_k w_k |y_k - T u_k - b|² / 2, reading units².
     :param iterations: Newton iterations taken.
-    :param converged: the last step was below :data:`STEP_TOLERANCE` standard errors (or
-        at the roundoff floor) and the reduced Hessian is positive definite.
+    :param converged: the Newton step from the result is below ``tol`` (default
+        :data:`STEP_TOLERANCE`) standard errors, or at the roundoff floor, and the
+        reduced Hessian there is positive definite.
     :param trace: objective after each iteration (first entry: the start).
     """
 
@@ -91,6 +96,24 @@ class MLResult:
     converged: bool
     seconds: float
     trace: list = field(default_factory=list)
+
+
+class _System(NamedTuple):
+    """
+    The reduced Newton system at one point, in normalised units.
+
+    :param S: (9, 9) Schur complement (reduced Hessian) of the KKT system.
+    :param rhs: (9,) reduced negative gradient: ``S dp = rhs`` is the Newton step.
+    :param objective: sum_k w_k |r_k|² / 2.
+    :param scatter: (3, 3) weighted mean of u uᵀ.
+    :param decrement_u: sum_k g_kᵀ P_k g_k, the directions' part of the Newton decrement.
+    """
+
+    S: np.ndarray
+    rhs: np.ndarray
+    objective: float
+    scatter: np.ndarray
+    decrement_u: float
 
 
 class _Problem:
@@ -120,6 +143,7 @@ class _Problem:
         self.n = yt.shape[1]
         self.block = int(block)
         self.data_energy = float(np.einsum('n,n->', w, np.sum(yt * yt, axis=0)))
+        self._work = {}
 
     def _blocks(self):
         for start in range(0, self.n, self.block):
@@ -147,48 +171,61 @@ class _Problem:
         uMu = np.sum(u_v * Mu_v, axis=0)
         return r, wr, g_uv, g_l, dinv, Mu_v, uMu
 
-    @staticmethod
-    def _accumulate(acc, basis, y, w, u, damping):
+    def _workspace(self, n):
+        """Buffers for one block of ``n`` observations, allocated once per size."""
+        work = self._work.get(n)
+        if work is None:
+            X, Z, H, G = (np.empty((rows, n)) for rows in (4, 34, 9, 12))
+            Z[0] = 1.0
+            work = self._work[n] = {
+                'X': X, 'Z': Z, 'H': H, 'Hs': np.empty((9, n)), 'G': G,
+                'uu': Z[7:16].reshape(3, 3, n), 'ur': Z[16:25].reshape(3, 3, n),
+                'rr': Z[25:34].reshape(3, 3, n)}
+            for name in ('uu', 'ur', 'rr'):      # reshape must give views to write into
+                assert np.shares_memory(work[name], Z)
+        return work
+
+    def _accumulate(self, acc, basis, y, w, u, damping):
         """Add one block's moments, rank-one terms and right-hand side to ``acc``."""
         T, b, evals, V, TV = basis
-        r, wr, g_uv, g_l, dinv, Mu_v, uMu = _Problem._local(basis, y, w, u, damping)
-        n = len(w)
-        X = np.empty((4, n))
+        r, wr, g_uv, g_l, dinv, Mu_v, uMu = self._local(basis, y, w, u, damping)
+        work = self._workspace(len(w))
+        X, Z, H, G = work['X'], work['Z'], work['H'], work['G']
         np.multiply(w * w, dinv, out=X[:3])
         X[3] = w
-        Z = np.empty((34, n))
-        Z[0] = 1.0
         Z[1:4] = u
         Z[4:7] = r
-        np.multiply(u[:, None], u[None], out=Z[7:16].reshape(3, 3, n))
-        np.multiply(u[:, None], r[None], out=Z[16:25].reshape(3, 3, n))
-        np.multiply(r[:, None], r[None], out=Z[25:34].reshape(3, 3, n))
+        np.multiply(u[:, None], u[None], out=work['uu'])
+        np.multiply(u[:, None], r[None], out=work['ur'])
+        np.multiply(r[:, None], r[None], out=work['rr'])
         acc['moments'] += cross_product(X, Z)
         # Rank-one part: C_k M_k⁻¹ u_k (9,) per observation, over u_kᵀ M_k⁻¹ u_k.
         alpha = apply(TV, Mu_v)
         beta = apply(V, Mu_v)
-        H = np.empty((9, n))
         np.multiply(u[_COL], alpha[_ROW], out=H[:6])
         H[:6] -= r[_ROW] * beta[_COL]
         H[6:] = alpha
         H *= w
-        # Right-hand side: sum_k C_k (P_k g_u + q_k g_l).
+        np.divide(H, uMu, out=work['Hs'])
+        acc['rank_one'] += cross_product(work['Hs'], H)
+        # Right-hand side: sum_k C_k (P_k g_u + q_k g_l), from (w γ, -δ) against (u, w r).
         Pg = dinv * g_uv - Mu_v * ((np.sum(Mu_v * g_uv, axis=0) - g_l) / uMu)
-        G = np.empty((6, n))
         np.multiply(w, apply(TV, Pg), out=G[:3])
-        np.negative(apply(V, Pg), out=G[3:])
-        acc['rank_one'] += cross_product(H / uMu, H)
-        acc['rhs'] += cross_product(G, np.concatenate([u, wr]))
+        np.negative(apply(V, Pg), out=G[3:6])
+        G[6:9] = u
+        G[9:] = wr
+        acc['rhs'] += cross_product(G[:6], G[6:])
         acc['rhs_b'] += np.sum(G[:3], axis=1)
+        acc['decrement_u'] += float(np.sum(g_uv * Pg))
 
     @staticmethod
     def _new_accumulator():
         return {'moments': np.zeros((4, 34)), 'rank_one': np.zeros((9, 9)),
-                'rhs': np.zeros((6, 6)), 'rhs_b': np.zeros(3)}
+                'rhs': np.zeros((6, 6)), 'rhs_b': np.zeros(3), 'decrement_u': 0.0}
 
     @staticmethod
     def _system(acc, basis, damping):
-        """Assemble ``S`` (9x9), ``rhs`` (9,), the objective and the direction scatter."""
+        """Assemble the :class:`_System` from the block sums."""
         T, b, evals, V, TV = basis
         M = acc['moments']
         m1, mu, mr = M[:3, 0], M[:3, 1:4], M[:3, 4:7]
@@ -222,14 +259,14 @@ class _Problem:
         R = acc['rhs']
         coupled = R[:3, :3] + R[3:, 3:].T
         rhs = np.concatenate([(wur.T + coupled)[UPPER], wr + acc['rhs_b']])
-        return S, rhs, 0.5 * float(np.trace(wrr)), wuu / wsum
+        return _System(S, rhs, 0.5 * float(np.trace(wrr)), wuu / wsum, acc['decrement_u'])
 
     def schur(self, p, ut, damping=0.0):
         """
         Reduced 9x9 Newton system ``S dp = rhs`` at (p, u), and the objective.
 
         :param ut: (3, N) directions by component.
-        :returns: (S (9, 9), rhs (9,), objective, weighted direction scatter (3, 3)).
+        :returns: :class:`_System`.
         """
         basis = self._basis(p)
         acc = self._new_accumulator()
@@ -245,9 +282,7 @@ class _Problem:
         the directions stepped and projected back onto the sphere, and the new
         point's moments accumulated.
 
-        :returns: (u_new (3, N), change, system at the new point as :meth:`schur`),
-            where ``change`` is sum_k w_k |J_k dp + T du_k|², the linearised change of
-            the residuals (objective units).
+        :returns: (u_new (3, N), :class:`_System` at the new point).
         """
         basis = self._basis(p)
         dT, db = unpack(dp)
@@ -255,20 +290,17 @@ class _Problem:
         T, _, _, V, TV = basis
         u_new = np.empty_like(ut)
         acc = self._new_accumulator()
-        change = 0.0
         for s in self._blocks():
             y, w, u = self.yt[:, s], self.w[s], ut[:, s]
             r, wr, g_uv, g_l, dinv, Mu_v, uMu = self._local(basis, y, w, u, damping)
             Jdp = apply(dT, u) + db[:, None]
             a = -g_uv - w * (apply(TV.T, Jdp) - apply(V.T @ dT.T, r))
             du = apply(V, dinv * a - Mu_v * ((np.sum(Mu_v * a, axis=0) + g_l) / uMu))
-            moved = Jdp + apply(T, du)
-            change += float(np.einsum('n,n->', w, np.sum(moved * moved, axis=0)))
             un = u_new[:, s]
             np.add(u, du, out=un)
             un /= np.sqrt(np.sum(un * un, axis=0))
             self._accumulate(acc, basis_new, y, w, un, 0.0)
-        return u_new, change, self._system(acc, basis_new, 0.0)
+        return u_new, self._system(acc, basis_new, 0.0)
 
 
 def _initial_directions(yt, T, b):
@@ -289,12 +321,14 @@ def fit_ml(readings, weights=None, radius=1.0, start=None, max_iter=100,
 
     The readings are centred and scaled to unit RMS radius first, so the iteration,
     its damping and its convergence test do not depend on the unit of the readings
-    (m/s², g, counts) nor on an offset. Convergence is declared when the last
-    undamped Newton step changed the residuals by at most ``tol`` noise standard
-    deviations in total (sum_k w_k |Δr_k|² <= tol² sigma², i.e. the step is below
-    ``tol`` standard errors of every parameter), or by no more than the roundoff of
-    the readings (noise-free data), and the reduced Hessian at the result is positive
-    definite (a minimum, not a saddle).
+    (m/s², g, counts) nor on an offset. Convergence is declared at a point where the
+    full Newton step (parameters and directions) would change the objective by at
+    most ``tol²`` noise variances: its Newton decrement ``delta²`` (the reduced part
+    ``rhsᵀ S⁻¹ rhs`` plus the directions' part) satisfies ``delta² <= tol² sigma²``, so
+    that point is within ``tol`` standard errors of the optimum in every parameter;
+    or where ``delta²`` is below the roundoff of the readings (noise-free data). The
+    reduced Hessian there must be positive definite (a minimum, not a saddle). The
+    test is the same at 1e-7 m/s² window noise and at 0.5 m/s², in counts or in g.
 
     :param readings: (N, 3) raw readings (window means or samples), N >= 10.
     :param weights: (N,) relative weights, e.g. samples per window (default 1).
@@ -302,7 +336,8 @@ def fit_ml(readings, weights=None, radius=1.0, start=None, max_iter=100,
     :param radius: magnitude of the true vectors (local gravity, same unit as readings).
     :param start: optional (T, bias) start; default the ellipsoid fit (eq. 16-18).
     :param max_iter: iteration limit.
-    :param tol: largest last step, in standard errors, that counts as converged.
+    :param tol: largest remaining Newton step, in standard errors, that counts as
+        converged.
     :returns: MLResult with T dimensionless and bias in reading units.
     :raises CalibrationError: too few observations or a degenerate geometry.
     """
@@ -331,23 +366,35 @@ def fit_ml(readings, weights=None, radius=1.0, start=None, max_iter=100,
     problem = _Problem(yt, w)
     p = pack(np.triu(T0), b0)
     u = _initial_directions(yt, unpack(p)[0], b0)
-    S, rhs, f, scatter = problem.schur(p, u)
-    trace = [f]
+    system = problem.schur(p, u)
+    trace = [system.objective]
     eps = np.finfo(float).eps
     floor = (PRECISION_FACTOR * eps) ** 2 * problem.data_energy
     damping, converged, it = 0.0, False, 0
-    system = None
-    for it in range(1, max_iter + 1):
+    while True:
+        # Newton decrement at the current point (Schur identity: reduced part plus the
+        # directions' part): the objective change the full Newton step would make.
+        f = system.objective
+        try:
+            dp = np.linalg.solve(system.S, system.rhs)
+            decrement = float(system.rhs @ dp) + system.decrement_u
+        except np.linalg.LinAlgError:
+            dp, decrement = None, np.inf
+        if (abs(decrement) <= tol ** 2 * 2.0 * f / (n - 9) + floor
+                and _positive_definite(system.S)):
+            converged = True
+            break
+        if it == max_iter:
+            break
+        it += 1
         while True:
-            dp = None
             try:
-                if damping:
-                    S_d, rhs_d, _, _ = problem.schur(p, u, damping)
-                else:
-                    S_d, rhs_d = S, rhs
-                dp = np.linalg.solve(S_d, rhs_d)
-                u_new, change, system = problem.step(p, u, dp, damping)
-                f_new = system[2]
+                if damping or dp is None:
+                    damping = max(damping, 1e-6)
+                    damped = problem.schur(p, u, damping)
+                    dp = np.linalg.solve(damped.S, damped.rhs)
+                u_new, new = problem.step(p, u, dp, damping)
+                f_new = new.objective
             except np.linalg.LinAlgError:
                 f_new = np.inf
             # Accept any decrease, and increases no larger than the objective's roundoff.
@@ -359,15 +406,10 @@ def fit_ml(readings, weights=None, radius=1.0, start=None, max_iter=100,
                 break
         if damping > 1e8:
             break
-        small = (not damping and
-                 change <= tol ** 2 * 2.0 * min(f, f_new) / (n - 9) + floor)
-        p, u = p + dp, u_new
-        S, rhs, f, scatter = system
-        trace.append(f)
+        p, u, system = p + dp, u_new, new
+        trace.append(system.objective)
         damping = damping / 10.0 if damping > 1e-9 else 0.0
-        if small:
-            converged = _positive_definite(S)
-            break
+    S, f, scatter = system.S, system.objective, system.scatter
     T, b = unpack(p)
     if np.any(np.diag(T) <= 0) or not np.all(np.isfinite(p)):
         raise CalibrationError('ML iteration diverged to a non-physical T; '
