@@ -46,7 +46,8 @@ def test_schur_step_equals_dense_newton_step():
     u = u / np.linalg.norm(u, axis=1, keepdims=True) + 0.01 * rng.standard_normal(u.shape)
     w = rng.uniform(0.5, 2.0, len(y))
     problem = _Problem(np.ascontiguousarray(y.T), w / w.mean(), block=4)
-    S, rhs = problem.schur(p, u.T)[:2]
+    system = problem.schur(p, u.T)
+    S, rhs = system.S, system.rhs
     dp = np.linalg.solve(S, rhs)
     u_new = problem.step(p, u.T, dp, 0.0)[0].T
 
@@ -77,6 +78,8 @@ def test_schur_step_equals_dense_newton_step():
         g[s + 3] = 0.5 * (u[k] @ u[k] - 1)
     dense = np.linalg.solve(H, -g)
     np.testing.assert_allclose(dp, dense[:9], rtol=1e-7, atol=1e-10)
+    # The Newton decrement gᵀ H⁻¹ g (convergence test) from the reduced pieces.
+    np.testing.assert_allclose(rhs @ dp + system.decrement_u, -g @ dense, rtol=1e-7)
     du = dense[9:].reshape(n, 4)[:, :3]
     np.testing.assert_allclose(u_new, (u + du) / np.linalg.norm(u + du, axis=1)[:, None],
                                rtol=1e-7, atol=1e-10)

@@ -209,14 +209,16 @@ class _Problem:
         np.divide(H, uMu, out=work['Hs'])
         acc['rank_one'] += cross_product(work['Hs'], H)
         # Right-hand side: sum_k C_k (P_k g_u + q_k g_l), from (w γ, -δ) against (u, w r).
-        Pg = dinv * g_uv - Mu_v * ((np.sum(Mu_v * g_uv, axis=0) - g_l) / uMu)
+        t = (np.sum(Mu_v * g_uv, axis=0) - g_l) / uMu
+        Pg = dinv * g_uv - Mu_v * t
         np.multiply(w, apply(TV, Pg), out=G[:3])
         np.negative(apply(V, Pg), out=G[3:6])
         G[6:9] = u
         G[9:] = wr
         acc['rhs'] += cross_product(G[:6], G[6:])
         acc['rhs_b'] += np.sum(G[:3], axis=1)
-        acc['decrement_u'] += float(np.sum(g_uv * Pg))
+        # [g_u; g_l]ᵀ K_k⁻¹ [g_u; g_l] of the per-observation KKT block K_k.
+        acc['decrement_u'] += float(np.sum(g_uv * Pg) + g_l @ t)
 
     @staticmethod
     def _new_accumulator():
