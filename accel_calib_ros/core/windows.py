@@ -162,8 +162,12 @@ def windows_from_ranges(samples, starts, stops, noise_floor=float('nan')):
     return StaticWindows(starts, stops, mean, scatter, count, t_mid, temp, noise_floor)
 
 
-def distinct_directions(vectors, min_angle_deg=10.0):
-    """Count the directions among ``vectors`` (N, 3) at least ``min_angle_deg`` apart."""
+def distinct_directions(vectors, min_angle_deg=10.0, limit=None):
+    """
+    Count the directions among ``vectors`` (N, 3) at least ``min_angle_deg`` apart.
+
+    :param limit: stop counting once this many are found (a check needs no more).
+    """
     u = np.asarray(vectors, float)
     u = u / np.linalg.norm(u, axis=1, keepdims=True)
     cos_min = np.cos(np.radians(min_angle_deg))
@@ -173,6 +177,8 @@ def distinct_directions(vectors, min_angle_deg=10.0):
         pick = u[np.argmax(remaining)]
         remaining &= u @ pick < cos_min
         count += 1
+        if limit is not None and count >= limit:
+            break
     return count
 
 
