@@ -171,3 +171,23 @@ def test_same_answers_as_the_previous_solver():
     assert new.converged and old.converged
     np.testing.assert_allclose(pack(new.T, new.bias), pack(old.T, old.bias), rtol=1e-9)
     np.testing.assert_allclose(new.directions, old.directions, atol=1e-9)
+
+
+@pytest.mark.parametrize('unit', [1e-3, 0.1019716, 1.0, 1670.7, 1e5])
+@pytest.mark.parametrize('offset', [0.0, -5e4, 1e6])
+def test_fits_are_equivariant_under_any_unit_and_offset(unit, offset):
+    """Readings * unit + offset: same T, bias * unit + offset, same iterations."""
+    u, y = session(11, 3e-3, windows=16)
+    ml_si, gn_si = fit_ml(y, radius=G), fit_gn(faces(11, 3e-3), radius=G)
+    ml = fit_ml(y * unit + offset, radius=G * unit)
+    gn = fit_gn(faces(11, 3e-3) * unit + offset, radius=G * unit)
+    assert ml.converged and gn.converged
+    assert ml.iterations == ml_si.iterations
+    # Relative precision of the shifted readings is eps * |offset| / (unit * g).
+    rtol = 1e-9 + 1e-12 * abs(offset) / (unit * G)
+    np.testing.assert_allclose(ml.T, ml_si.T, rtol=rtol, atol=rtol)
+    np.testing.assert_allclose(ml.bias, ml_si.bias * unit + offset, rtol=rtol,
+                               atol=rtol * unit * G)
+    np.testing.assert_allclose(gn.T, gn_si.T, rtol=rtol)
+    np.testing.assert_allclose(gn.bias, gn_si.bias * unit + offset, rtol=rtol,
+                               atol=rtol * unit * G)
