@@ -238,8 +238,7 @@ def check_geometry(readings, method):
             f'{n} static observations; method {method} needs at least {need_obs} '
             f'in {need_dirs} distinct orientations: hold more poses')
     centred = readings - np.median(readings, axis=0)
-    dirs = distinct_directions(readings - (readings.max(0) + readings.min(0)) / 2, 15.0,
-                               limit=need_dirs)
+    dirs = distinct_directions(readings - (readings.max(0) + readings.min(0)) / 2, 15.0)
     if dirs < need_dirs:
         raise CalibrationError(
             f'only {dirs} distinct orientations among {n} observations; method {method} '
