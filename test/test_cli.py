@@ -58,7 +58,14 @@ def test_simulate_fit_apply_round_trip(capsys, session_csv, tmp_path):
 
 
 def test_gn_is_diagonal_and_human_output_is_readable(capsys, session_csv):
-    code, out, _ = run(capsys, 'fit', session_csv, '--method', 'gn', '--json')
+    # The sensor has cross-axis terms the 6-parameter model cannot hold: the residual
+    # shows it, the predicted accuracy is poor and the fit is refused by default.
+    code, out, err = run(capsys, 'fit', session_csv, '--method', 'gn', '--json')
+    summary = json.loads(out)
+    assert code == 1 and not summary['accepted'] and summary['predicted_accuracy'] > 0.02
+    assert 'predicted accuracy' in err and err.count('\n') == 1
+    code, out, _ = run(capsys, 'fit', session_csv, '--method', 'gn', '--json',
+                       '--max-predicted-error', '1')
     T = np.array(json.loads(out)['T'])
     assert code == 0 and np.all(T == np.diag(np.diag(T)))
     code, out, _ = run(capsys, 'fit', session_csv)

@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 
+from .accuracy import fisher_information, predicted_accuracy
 from .ellipsoid import fit_ellipsoid
 from .errors import CalibrationError, InputError
 from .gn import fit_gn
@@ -45,12 +46,15 @@ def check_geometry(readings, method):
         raise CalibrationError(
             f'{n} static observations; method {method} needs at least {need_obs} '
             f'in {need_dirs} distinct orientations: hold more poses')
-    centred = readings - np.median(readings, axis=0)
-    dirs = distinct_directions(readings - (readings.max(0) + readings.min(0)) / 2, 15.0)
+    # Directions of the raw readings themselves: the bias is small next to gravity, and
+    # centring on the data (as an ellipsoid fit would) turns the noise cloud of a single
+    # pose into "many directions".
+    dirs = distinct_directions(readings, 15.0)
     if dirs < need_dirs:
         raise CalibrationError(
             f'only {dirs} distinct orientations among {n} observations; method {method} '
             f'needs {need_dirs}: turn the sensor so each axis points up and down')
+    centred = readings - np.median(readings, axis=0)
     spread = np.linalg.svd(centred / (np.linalg.norm(centred, axis=1).max() + 1e-300),
                            compute_uv=False)
     if spread[-1] < 1e-3 * spread[0]:
@@ -82,8 +86,71 @@ def _fit_reference(y, gravity, method, weights):
     return T, bias, cov, info
 
 
+def _unit_weights(weights, n):
+    w = np.ones(n) if weights is None else np.asarray(weights, float).reshape(n)
+    return w / np.mean(w)
+
+
+def parameter_covariance(y, T, bias, gravity, method, weights=None, noise_std=None,
+                         mean_count=None):
+    """
+    Covariance (9, 9) of (T upper, bias) at the fitted parameters, with noise from the data.
+
+    The information matrix is the ML one (``accuracy.fisher_information``) for every
+    method, restricted to the parameters the method fits (GN: the diagonal of T and the
+    bias; the others are held and get zero variance). The noise per unit weight is the
+    larger of the residual scatter about the fitted ellipsoid (model errors included)
+    and the within-window noise (``noise_std`` / sqrt(mean samples per window)), so a
+    fit with few spare observations cannot look better than its sensor.
+
+    :param y: (N, 3) observations, reading units.
+    :param noise_std: (3,) per-sample noise, reading units, or None.
+    :param mean_count: mean samples per observation behind ``noise_std`` (1 for samples).
+    :returns: (covariance (9, 9), sigma per unit weight, reading units).
+    """
+    n = len(y)
+    w = _unit_weights(weights, n)
+    F, u = fisher_information(T, bias, y, w, gravity)
+    idx = [0, 3, 5, 6, 7, 8] if method == 'gn' else list(range(9))
+    ideal = gravity * u @ np.asarray(T).T + bias
+    resid = np.linalg.norm(y - ideal, axis=1)
+    sigmas = []
+    if n > len(idx):
+        sigmas.append(np.sqrt(np.sum(w * resid ** 2) / (n - len(idx))))
+    if noise_std is not None and np.all(np.isfinite(noise_std)):
+        per_sample = float(np.sqrt(np.mean(np.square(noise_std))))
+        sigmas.append(per_sample / np.sqrt(max(mean_count or 1.0, 1.0)))
+    sigma = max(sigmas) if sigmas else float('nan')
+    cov = np.zeros((9, 9))
+    sub = F[np.ix_(idx, idx)]
+    scale = np.sqrt(np.maximum(np.diag(sub), 1e-300))
+    with np.errstate(all='ignore'):
+        if np.linalg.cond(sub / np.outer(scale, scale)) > 1e14:
+            cov[np.ix_(idx, idx)] = np.inf
+        else:
+            cov[np.ix_(idx, idx)] = sigma ** 2 * np.linalg.inv(sub)
+    return cov, float(sigma)
+
+
+def estimate_gyro_bias(gyro_means, weights=None):
+    """
+    Gyroscope bias (3,) rad/s: weighted mean of the static windows' mean rates.
+
+    :param gyro_means: (W, 3) window mean angular rates, rad/s (raw = true + bias).
+    :param weights: (W,) samples per window (default equal).
+    :returns: (3,) or None when there is no finite window.
+    """
+    g = np.asarray(gyro_means, float).reshape(-1, 3)
+    ok = np.all(np.isfinite(g), axis=1)
+    if not ok.any():
+        return None
+    w = np.ones(len(g)) if weights is None else np.asarray(weights, float).reshape(-1)
+    return np.average(g[ok], axis=0, weights=w[ok])
+
+
 def calibrate(readings, gravity=9.80665, method='ml', weights=None, temps=None,
-              thermal=False, band_width_c=10.0, noise_std=None, source=''):
+              thermal=False, band_width_c=10.0, noise_std=None, source='', gyro_means=None,
+              mean_count=None):
     """
     Fit a Calibration to static observations (window means or samples).
 
@@ -95,18 +162,27 @@ def calibrate(readings, gravity=9.80665, method='ml', weights=None, temps=None,
     :param temps: (N,) observation temperatures, °C, for the drift tables.
     :param thermal: fit temperature-band tables (needs ``temps``).
     :param noise_std: (3,) per-sample noise measured in the windows, m/s².
-    :returns: Calibration.
+    :param gyro_means: (N, 3) mean angular rate of each observation, rad/s: gives the
+        gyroscope bias (and per temperature band with ``thermal``).
+    :param mean_count: mean samples per observation behind ``noise_std``
+        (default: the mean weight, i.e. samples per window).
+    :returns: Calibration with ``predicted_accuracy`` (spec §5).
     :raises CalibrationError: the data cannot determine the model (with the reason).
     """
     if method not in METHODS:
         raise InputError(f'unknown method {method!r}; choose one of {", ".join(METHODS)}')
     y = np.asarray(readings, float).reshape(-1, 3)
+    if not np.all(np.isfinite(y)):
+        raise InputError('observations hold NaN or infinite values')
     check_geometry(y, method)
     T, bias, cov, info = _fit_reference(y, gravity, method, weights)
     cal = Calibration(T=T, bias=bias, gravity=gravity, method=method, covariance=cov,
                       observations=len(y), source=source,
                       noise_std=np.full(3, np.nan) if noise_std is None else noise_std,
                       **info)
+    if temps is not None and np.any(np.isfinite(temps)):
+        tf = np.asarray(temps, float)[np.isfinite(temps)]
+        cal.temperature_range_c = (float(tf.min()), float(tf.max()))
     if thermal:
         if temps is None or not np.any(np.isfinite(temps)):
             raise InputError('thermal tables need temperatures (a temp column) in the data')
@@ -124,6 +200,25 @@ def calibrate(readings, gravity=9.80665, method='ml', weights=None, temps=None,
                                                                 weights)
         cal.thermal = fit_thermal_table(y, temps, cal.T, cal.bias, gravity, weights,
                                         band_width_c)
+    clean = y if cal.thermal is None or temps is None else y - cal.thermal.drift(y, temps)
+    if mean_count is None:
+        mean_count = 1.0 if weights is None else float(np.mean(weights))
+    with np.errstate(all='ignore'):
+        cal.covariance, _ = parameter_covariance(clean, cal.T, cal.bias, gravity, method,
+                                                 weights, cal.noise_std, mean_count)
+        cal.predicted_accuracy = predicted_accuracy(cal.T, cal.covariance, gravity)
+    if not np.isfinite(cal.predicted_accuracy):
+        cal.predicted_accuracy = float('inf')
+    if gyro_means is not None:
+        cal.gyro_bias = estimate_gyro_bias(gyro_means, weights)
+        if cal.thermal is not None:
+            index = np.floor(np.asarray(temps, float) / band_width_c)
+            for band in cal.thermal.bands:
+                sel = np.isfinite(temps) & (index == np.floor(band.low_c / band_width_c))
+                if sel.any():
+                    band.gyro_bias = estimate_gyro_bias(
+                        np.asarray(gyro_means, float)[sel],
+                        None if weights is None else np.asarray(weights, float)[sel])
     cal.residual_rms = float(np.sqrt(np.mean(gravity_residuals(cal, None, y, gravity,
                                                                temps) ** 2)))
     return cal
@@ -133,3 +228,70 @@ def default_calibration_path():
     """Where the nodes keep the calibration (moved to ``dataio.calibration_file``)."""
     from ..dataio.calibration_file import default_calibration_path as path
     return path()
+
+
+OUTLIER_FACTOR = 8.0
+"""A window is an outlier when its gravity-norm residual exceeds this many times its noise."""
+MAX_OUTLIER_FRACTION = 0.25
+"""Never drop more than this fraction of the windows (beyond it the session is refused)."""
+
+
+def find_outlier_windows(readings, weights, counts, noise_std, gravity=9.80665, temps=None,
+                         thermal=False, band_width_c=10.0, method='ml', rounds=3):
+    """
+    Windows whose gravity-norm residual after a robust fit is far beyond their noise.
+
+    A slow turn leaking into a hold, a bump, or a hand still settling moves a window's
+    mean off the ellipsoid every other window lies on. The fit is repeated without
+    the flagged windows (so they cannot pull it) up to ``rounds`` times. The scale a
+    residual is compared with is the larger of the window's own noise
+    (``noise_std`` / sqrt(count)) and 1.4826 x the median absolute residual of the
+    kept windows (model errors every window shares); more than
+    :data:`MAX_OUTLIER_FRACTION` of the windows, or a geometry the model cannot be
+    fitted on without them, is never dropped (the fit then judges the session).
+
+    :param readings: (W, 3) window means, m/s²; ``counts``: (W,) samples per window.
+    :returns: (keep mask (W,), list of (index, reason)).
+    """
+    y = np.asarray(readings, float).reshape(-1, 3)
+    n = len(y)
+    keep = np.ones(n, bool)
+    if n < 12:
+        return keep, []
+    counts = np.asarray(counts, float).reshape(n)
+    noise = float(np.sqrt(np.mean(np.square(noise_std)))) if noise_std is not None \
+        and np.all(np.isfinite(noise_std)) else 0.0
+    own = noise / np.sqrt(np.maximum(counts, 1.0))
+    w = None if weights is None else np.asarray(weights, float).reshape(n)
+    t = None if temps is None else np.asarray(temps, float).reshape(n)
+    reasons = {}
+    for _ in range(rounds):
+        sel = keep
+        try:
+            with np.errstate(all='ignore'):
+                cal = calibrate(y[sel], gravity, 'gn' if method == 'gn' else 'ml',
+                                None if w is None else w[sel], None if t is None else t[sel],
+                                thermal and t is not None, band_width_c)
+        except (CalibrationError, InputError, np.linalg.LinAlgError):
+            break
+        r = np.abs(gravity_residuals(cal, None, y, gravity, t))
+        robust = 1.4826 * np.median(r[keep])
+        limit = OUTLIER_FACTOR * np.maximum(np.maximum(own, robust), 1e-7 * gravity)
+        bad = r > limit
+        if bad.sum() > MAX_OUTLIER_FRACTION * n:
+            order = np.argsort(-(r / limit))
+            bad = np.zeros(n, bool)
+            bad[order[:int(MAX_OUTLIER_FRACTION * n)]] = True
+        new_keep = ~bad
+        if np.array_equal(new_keep, keep):
+            break
+        try:
+            check_geometry(y[new_keep], method)
+        except CalibrationError:
+            break
+        keep = new_keep
+        for k in np.flatnonzero(bad):
+            scale = max(own[k], robust, 1e-300)
+            reasons[int(k)] = (f'gravity-norm residual {r[k]:.4f} m/s² is {r[k] / scale:.0f}x '
+                               f'its noise {scale:.2g} m/s² (moved during the hold?)')
+    return keep, [(k, reasons[k]) for k in sorted(reasons) if not keep[k]]
