@@ -334,11 +334,11 @@ def cmd_fit(args, out):
                     source=os.path.basename(args.data), gyro_means=obs.gyro,
                     mean_count=obs.mean_count)
     raw_resid = np.sqrt(np.mean((np.linalg.norm(obs.readings, axis=1) - args.gravity) ** 2))
-    refusal = None
+    refusal = _accuracy_refusal(cal, args.max_predicted_error)
     if not cal.converged and not args.force:
         refusal = (f'the {cal.method} fit did not converge in {cal.iterations} iterations; '
-                   'nothing written (add more distinct poses, or --force to write it anyway)')
-    refusal = refusal or _accuracy_refusal(cal, args.max_predicted_error)
+                   'nothing written (' + (refusal or 'add more distinct poses, or --force to '
+                                          'write it anyway') + ')')
     extra = {'mode': args.mode, 'samples': len(samples), 'residual_rms_uncalibrated': raw_resid,
              'max_predicted_error': args.max_predicted_error, 'accepted': refusal is None,
              'refusal': refusal, 'dropped_windows': obs.dropped,
@@ -347,7 +347,7 @@ def cmd_fit(args, out):
         print(f'accel-calib: WARNING: the {cal.method} fit did NOT converge in '
               f'{cal.iterations} iterations; writing it only because of --force. Do not '
               'trust this calibration.', file=sys.stderr)
-    for problem in cal.physical_problems():
+    for problem in cal.physical_problems() if refusal is None else []:
         print(f'accel-calib: warning: {problem} (are the data in m/s²?)', file=sys.stderr)
     if refusal is None and args.output:
         from .dataio.calibration_file import save_calibration

@@ -51,14 +51,31 @@ def check_geometry(readings, method):
     # pose into "many directions".
     dirs = distinct_directions(readings, 15.0)
     if dirs < need_dirs:
+        missing = missing_faces(readings)
         raise CalibrationError(
             f'only {dirs} distinct orientations among {n} observations; method {method} '
-            f'needs {need_dirs}: turn the sensor so each axis points up and down')
+            f'needs {need_dirs}: '
+            + (f'no pose had the {", the ".join(missing)}; hold those poses (still, a few '
+               'seconds each) and record again' if missing else
+               'turn the sensor so each axis points up and down'))
     centred = readings - np.median(readings, axis=0)
     spread = np.linalg.svd(centred / (np.linalg.norm(centred, axis=1).max() + 1e-300),
                            compute_uv=False)
     if spread[-1] < 1e-3 * spread[0]:
         raise CalibrationError('all orientations lie in one plane: tilt the sensor out of it')
+
+
+def missing_faces(readings, within_deg=50.0):
+    """
+    Names of the faces ('x axis up', ...) no observation came within ``within_deg`` of.
+
+    :param readings: (N, 3) raw readings; their direction is the sensor axis pointing up.
+    """
+    from .accuracy import FACE_DIRECTIONS, FACE_NAMES
+    y = np.asarray(readings, float).reshape(-1, 3)
+    u = y / np.maximum(np.linalg.norm(y, axis=1, keepdims=True), 1e-300)
+    best = (u @ FACE_DIRECTIONS.T).max(axis=0)
+    return [name for name, c in zip(FACE_NAMES, best) if c < np.cos(np.radians(within_deg))]
 
 
 THERMAL_ROUNDS = 4
