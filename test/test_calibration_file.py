@@ -26,7 +26,7 @@ def full_calibration():
     bands = [ThermalBand(10.0, 20.0, 15.0, np.full(3, 1e-4), np.full(3, 1e-3),
                          np.array([0.01, -0.02, 0.03]), 14, gyro_bias=np.array([1e-3, 0, 0])),
              ThermalBand(20.0, 30.0, 25.0, np.zeros(3), np.zeros(3), np.zeros(3), 3,
-                         'insufficient: 3 windows, needs 12')]
+                         'too few windows: 3 static windows in 20..30 °C, needs 12')]
     cov = np.diag(np.r_[np.full(6, 1e-8), np.full(3, 1e-6)])
     return Calibration(T=T, bias=[0.2, -0.1, 0.3], covariance=cov, noise_std=[0.03, 0.03, 0.04],
                        predicted_accuracy=0.004, gyro_bias=[0.01, -0.02, 0.005],

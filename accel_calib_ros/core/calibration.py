@@ -26,7 +26,8 @@ from .model import Calibration, METHODS
 from .thermal import fit_thermal_table
 from .windows import distinct_directions
 
-__all__ = ['Calibration', 'METHODS', 'calibrate', 'check_geometry', 'gravity_residuals']
+__all__ = ['Calibration', 'METHODS', 'calibrate', 'check_geometry', 'estimate_gyro_bias',
+           'find_outlier_windows', 'gravity_residuals', 'missing_faces', 'parameter_covariance']
 
 
 def gravity_residuals(cal_or_T, bias, readings, gravity, temps=None):
@@ -253,19 +254,75 @@ MAX_OUTLIER_FRACTION = 0.25
 """Never drop more than this fraction of the windows (beyond it the session is refused)."""
 
 
+def _norm_residuals_fit(y, w, dt, gravity, start, iterations=30):
+    """
+    Weighted least-squares fit of |T⁻¹ (y - b - k dt)| = gravity; return the residuals.
+
+    T upper triangular, b the bias and k (3,) a linear temperature coefficient of the
+    bias (``dt`` °C from the mean, zeros without temperatures): a model general enough
+    for every window of a session that the outlier test can trust. Levenberg-Marquardt
+    with a finite-difference Jacobian (12 parameters).
+    """
+    rows, cols = np.triu_indices(3)
+
+    def residual(p):
+        T = np.zeros((3, 3))
+        T[rows, cols] = p[:6]
+        x = y - p[6:9] - np.outer(dt, p[9:12])
+        return np.linalg.norm(np.linalg.solve(T, x.T).T, axis=1) - gravity
+
+    p = np.r_[start[0][rows, cols], start[1], np.zeros(3)]
+    use = slice(None) if np.any(dt != 0) else slice(0, 9)
+    r = residual(p)
+    cost, damping = float(np.sum(w * r ** 2)), 1e-3
+    for _ in range(iterations):
+        h = 1e-6 * np.maximum(np.abs(p), 1e-3)
+        J = np.zeros((len(y), 12))
+        for k in range(12)[use]:
+            e = np.zeros(12)
+            e[k] = h[k]
+            J[:, k] = (residual(p + e) - residual(p - e)) / (2 * h[k])
+        J = J[:, use]
+        A = J.T @ (w[:, None] * J)
+        g = J.T @ (w * r)
+        try:
+            step = np.linalg.solve(A + damping * np.diag(np.diag(A) + 1e-300), -g)
+        except np.linalg.LinAlgError:
+            break
+        trial = p.copy()
+        trial[use] += step
+        with np.errstate(all='ignore'):
+            r_new = residual(trial)
+        cost_new = float(np.sum(w * r_new ** 2))
+        if np.isfinite(cost_new) and cost_new <= cost:
+            done = cost - cost_new <= 1e-12 * cost
+            p, r, cost, damping = trial, r_new, cost_new, damping / 10
+            if done:
+                break
+        else:
+            damping *= 10
+            if damping > 1e8:
+                break
+    return r
+
+
 def find_outlier_windows(readings, weights, counts, noise_std, gravity=9.80665, temps=None,
-                         thermal=False, band_width_c=10.0, method='ml', rounds=3):
+                         thermal=False, band_width_c=10.0, method='ml', rounds=8):
     """
     Windows whose gravity-norm residual after a robust fit is far beyond their noise.
 
     A slow turn leaking into a hold, a bump, or a hand still settling moves a window's
-    mean off the ellipsoid every other window lies on. The fit is repeated without
-    the flagged windows (so they cannot pull it) up to ``rounds`` times. The scale a
-    residual is compared with is the larger of the window's own noise
-    (``noise_std`` / sqrt(count)) and 1.4826 x the median absolute residual of the
-    kept windows (model errors every window shares); more than
-    :data:`MAX_OUTLIER_FRACTION` of the windows, or a geometry the model cannot be
-    fitted on without them, is never dropped (the fit then judges the session).
+    mean off the ellipsoid every other window lies on. The fit is made robust by
+    iteratively reweighting the windows with Tukey's biweight of their residuals (so an
+    outlier cannot pull the fit towards itself), then a window is an outlier when its
+    residual exceeds :data:`OUTLIER_FACTOR` times the larger of its own noise
+    (``noise_std`` / sqrt(count)) and 1.4826 x the median absolute residual (model errors
+    every window shares). The fit carries a linear temperature coefficient of the bias
+    when the temperatures spread (``thermal`` is accepted for symmetry with
+    :func:`calibrate`), so drift is not mistaken for motion. More than
+    :data:`MAX_OUTLIER_FRACTION` of the windows, or a
+    set the model cannot be fitted on without them, is never dropped (the fit then
+    judges the session).
 
     :param readings: (W, 3) window means, m/s²; ``counts``: (W,) samples per window.
     :returns: (keep mask (W,), list of (index, reason)).
@@ -278,37 +335,45 @@ def find_outlier_windows(readings, weights, counts, noise_std, gravity=9.80665, 
     counts = np.asarray(counts, float).reshape(n)
     noise = float(np.sqrt(np.mean(np.square(noise_std)))) if noise_std is not None \
         and np.all(np.isfinite(noise_std)) else 0.0
-    own = noise / np.sqrt(np.maximum(counts, 1.0))
-    w = None if weights is None else np.asarray(weights, float).reshape(n)
+    own = np.maximum(noise / np.sqrt(np.maximum(counts, 1.0)), 1e-7 * gravity)
+    w = np.ones(n) if weights is None else np.asarray(weights, float).reshape(n)
     t = None if temps is None else np.asarray(temps, float).reshape(n)
-    reasons = {}
+    robust_w = np.ones(n)
+    dt = np.zeros(n)
+    if t is not None and np.all(np.isfinite(t)) and np.ptp(t) > 1.0:
+        dt = t - np.average(t, weights=w)
+    try:
+        with np.errstate(all='ignore'):
+            start = _fit_reference(y, gravity, 'ml', w)[:2]
+    except (CalibrationError, np.linalg.LinAlgError):
+        return keep, []
+    r = scale = None
     for _ in range(rounds):
-        sel = keep
-        try:
-            with np.errstate(all='ignore'):
-                cal = calibrate(y[sel], gravity, 'gn' if method == 'gn' else 'ml',
-                                None if w is None else w[sel], None if t is None else t[sel],
-                                thermal and t is not None, band_width_c)
-        except (CalibrationError, InputError, np.linalg.LinAlgError):
+        with np.errstate(all='ignore'):
+            r_new = np.abs(_norm_residuals_fit(y, w * np.maximum(robust_w, 1e-6), dt, gravity,
+                                               start))
+        if not np.all(np.isfinite(r_new)):
             break
-        r = np.abs(gravity_residuals(cal, None, y, gravity, t))
-        robust = 1.4826 * np.median(r[keep])
-        limit = OUTLIER_FACTOR * np.maximum(np.maximum(own, robust), 1e-7 * gravity)
-        bad = r > limit
-        if bad.sum() > MAX_OUTLIER_FRACTION * n:
-            order = np.argsort(-(r / limit))
-            bad = np.zeros(n, bool)
-            bad[order[:int(MAX_OUTLIER_FRACTION * n)]] = True
-        new_keep = ~bad
-        if np.array_equal(new_keep, keep):
+        r = r_new
+        trusted = robust_w > 0.5
+        spread = 1.4826 * np.median(r[trusted]) if trusted.any() else np.median(r)
+        scale = np.maximum(own, spread)
+        z = r / (4.685 * scale)
+        new_w = np.where(z < 1.0, (1.0 - z ** 2) ** 2, 0.0)
+        if np.allclose(new_w, robust_w, atol=1e-3):
             break
+        robust_w = new_w
+    if r is None:
+        return keep, []
+    bad = r > OUTLIER_FACTOR * scale
+    if bad.sum() > MAX_OUTLIER_FRACTION * n:
+        return keep, []
+    if bad.any():
         try:
-            check_geometry(y[new_keep], method)
+            check_geometry(y[~bad], method)
         except CalibrationError:
-            break
-        keep = new_keep
-        for k in np.flatnonzero(bad):
-            scale = max(own[k], robust, 1e-300)
-            reasons[int(k)] = (f'gravity-norm residual {r[k]:.4f} m/s² is {r[k] / scale:.0f}x '
-                               f'its noise {scale:.2g} m/s² (moved during the hold?)')
-    return keep, [(k, reasons[k]) for k in sorted(reasons) if not keep[k]]
+            return keep, []
+    reasons = [(int(k), f'gravity-norm residual {r[k]:.4f} m/s² is {r[k] / scale[k]:.0f}x '
+                        f'its noise {scale[k]:.2g} m/s² (moved during the hold?)')
+               for k in np.flatnonzero(bad)]
+    return ~bad, reasons

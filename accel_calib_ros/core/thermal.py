@@ -172,6 +172,18 @@ def _basis(temps, nodes, low, high):
     return phi
 
 
+def _distinct(vectors, min_angle_deg=15.0):
+    """Count the directions among ``vectors`` (N, 3) at least ``min_angle_deg`` apart."""
+    u = np.asarray(vectors, float).reshape(-1, 3)
+    u = u / np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
+    remaining = np.ones(len(u), bool)
+    count = 0
+    while remaining.any():
+        remaining &= u @ u[np.argmax(remaining)] < np.cos(np.radians(min_angle_deg))
+        count += 1
+    return count
+
+
 def _fit_nodes(z, w, phi, R, b, iterations=10):
     """
     Fit normalised drift coefficients at every node jointly.
@@ -246,7 +258,8 @@ def fit_thermal_table(readings, temps, T, bias, gravity, weights=None, band_widt
                                  zeros, zeros, zeros, int(sel.sum())))
     for band in bands:
         if band.windows < min_windows:
-            band.status = f'insufficient: {band.windows} windows, needs {min_windows}'
+            band.status = (f'too few windows: {band.windows} static windows in '
+                           f'{band.low_c:g}..{band.high_c:g} °C, needs {min_windows}')
     zf, wf, tf = z[finite], w[finite] / np.mean(w[finite]), temps[finite]
     while True:
         ok = [band for band in bands if band.status == 'ok']
@@ -262,6 +275,11 @@ def fit_thermal_table(readings, temps, T, bias, gravity, weights=None, band_widt
                 mine = (tf >= band.low_c) & (tf < band.high_c)
                 band.residual_rms = float(np.sqrt(np.mean(res[mine] ** 2))) * gravity
             break
-        ok[weak].status = 'insufficient: its orientations cannot separate the drift terms'
+        band = ok[weak]
+        mine = (tf >= band.low_c) & (tf < band.high_c)
+        dirs = _distinct(zf[mine])
+        band.status = (f'too few distinct directions: {dirs} among its {band.windows} windows '
+                       'cannot separate the drift terms (hold each axis up and down at this '
+                       'temperature)')
     table.bands = bands
     return table
