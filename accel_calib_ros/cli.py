@@ -327,12 +327,22 @@ def _print_fit(cal, summary, n_obs, mode, samples, dropped, out_path):
 def cmd_fit(args, out):
     _check_output(args.output, args.data)
     samples = _load(args)
-    obs = _observations(samples, args)
-    cal = calibrate(obs.readings, gravity=args.gravity, method=args.method,
-                    weights=obs.weights, temps=obs.temps, thermal=args.thermal,
-                    band_width_c=args.band_width, noise_std=obs.noise,
-                    source=os.path.basename(args.data), gyro_means=obs.gyro,
-                    mean_count=obs.mean_count)
+    obs = None
+    try:
+        obs = _observations(samples, args)
+        cal = calibrate(obs.readings, gravity=args.gravity, method=args.method,
+                        weights=obs.weights, temps=obs.temps, thermal=args.thermal,
+                        band_width_c=args.band_width, noise_std=obs.noise,
+                        source=os.path.basename(args.data), gyro_means=obs.gyro,
+                        mean_count=obs.mean_count)
+    except CalibrationError as err:
+        if args.json:       # still exactly one JSON object, saying why
+            out({'method': args.method, 'mode': args.mode, 'samples': len(samples),
+                 'observations': 0 if obs is None else obs.count, 'accepted': False,
+                 'refusal': str(err), 'converged': False, 'predicted_accuracy': None,
+                 'max_predicted_error': args.max_predicted_error,
+                 'dropped_windows': [] if obs is None else obs.dropped, 'output': None})
+        raise
     raw_resid = np.sqrt(np.mean((np.linalg.norm(obs.readings, axis=1) - args.gravity) ** 2))
     refusal = _accuracy_refusal(cal, args.max_predicted_error)
     if not cal.converged and not args.force:

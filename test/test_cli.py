@@ -239,10 +239,12 @@ def test_tilt_only_session_is_refused_naming_the_missing_poses(capsys, tmp_path,
     data, _, _ = _session_file(tmp_path / 'tilt.csv',
                                _cap_directions(max_deg, 30, np.random.default_rng(max_deg)))
     for method in ('ml', 'gn', 'ellipsoid'):
-        code, out, err = run(capsys, 'fit', data, '--method', method, '-o', calib)
+        code, out, err = run(capsys, 'fit', data, '--method', method, '-o', calib, '--json')
         assert code == 1, (method, err)
         assert err.count('\n') == 1 and 'z axis down' in err, err
         assert calib.read_bytes() == before
+        summary = json.loads(out)
+        assert not summary['accepted'] and 'z axis down' in summary['refusal']
 
 
 def test_predicted_accuracy_in_json_file_and_summary(capsys, tmp_path, session_csv):
