@@ -357,6 +357,11 @@ def cmd_fit(args, out):
         print(f'accel-calib: WARNING: the {cal.method} fit did NOT converge in '
               f'{cal.iterations} iterations; writing it only because of --force. Do not '
               'trust this calibration.', file=sys.stderr)
+    if refusal is None and cal.method == 'gn' and cal.observations < 10:
+        print(f'accel-calib: warning: the 6-parameter gn model assumes orthogonal axes; '
+              f'{cal.observations} poses cannot check that, so the predicted accuracy leaves '
+              'out any cross-axis error (up to ±2 % on an MPU-9250: hold 10 or more poses, '
+              'or use ml)', file=sys.stderr)
     for problem in cal.physical_problems() if refusal is None else []:
         print(f'accel-calib: warning: {problem} (are the data in m/s²?)', file=sys.stderr)
     if refusal is None and args.output:

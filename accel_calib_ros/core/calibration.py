@@ -150,6 +150,27 @@ def parameter_covariance(y, T, bias, gravity, method, weights=None, noise_std=No
     return cov, float(sigma)
 
 
+def _add_held_terms(cal, y, gravity, weights):
+    """
+    Charge the 6-parameter (gn) fit for the cross-axis terms it holds at zero.
+
+    With 10 or more observations the 9-parameter ML fit measures those terms; their
+    mean-square error as estimates of zero (value² + variance) goes on the diagonal of
+    the covariance, so the predicted accuracy of a gn fit to a non-orthogonal sensor
+    says what the missing terms cost. With fewer observations nothing can check the
+    assumption (the CLI warns).
+    """
+    try:
+        fit = fit_ml(y, weights, gravity)
+    except (CalibrationError, np.linalg.LinAlgError, ValueError):
+        return
+    held = {1: (0, 1), 2: (0, 2), 4: (1, 2)}                # PARAMETER_NAMES index -> T[i, j]
+    if not np.all(np.isfinite(fit.covariance)):
+        return
+    for k, (i, j) in held.items():
+        cal.covariance[k, k] += fit.T[i, j] ** 2 + fit.covariance[k, k]
+
+
 def estimate_gyro_bias(gyro_means, weights=None):
     """
     Gyroscope bias (3,) rad/s: weighted mean of the static windows' mean rates.
@@ -224,6 +245,8 @@ def calibrate(readings, gravity=9.80665, method='ml', weights=None, temps=None,
     with np.errstate(all='ignore'):
         cal.covariance, _ = parameter_covariance(clean, cal.T, cal.bias, gravity, method,
                                                  weights, cal.noise_std, mean_count)
+        if method == 'gn':
+            _add_held_terms(cal, clean, gravity, weights)
         cal.predicted_accuracy = predicted_accuracy(cal.T, cal.covariance, gravity)
     if not np.isfinite(cal.predicted_accuracy):
         cal.predicted_accuracy = float('inf')
