@@ -111,7 +111,7 @@ def test_sparse_band_is_reported_and_skipped():
     table = fit_thermal_table(y, temps, sensor.T, sensor.bias, G)
     status = {b.low_c: b.status for b in table.bands}
     assert status[20.0] == 'ok'
-    assert status[30.0].startswith('insufficient') and '10 windows' in status[30.0]
+    assert status[30.0].startswith('too few windows') and '10 static windows' in status[30.0]
     np.testing.assert_allclose(table.drift(y[:1], 35.0), table.drift(y[:1], 29.0))
 
 
