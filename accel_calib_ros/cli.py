@@ -324,6 +324,21 @@ def _print_fit(cal, summary, n_obs, mode, samples, dropped, out_path):
         print(f'wrote {out_path}')
 
 
+def _drop_implausible_gyro_bias(cal):
+    """Leave out a gyro bias no rad/s gyro has (the accelerometer fit still counts)."""
+    from .dataio.calibration_file import MAX_GYRO_BIAS
+    biases = [cal.gyro_bias] + ([b.gyro_bias for b in cal.thermal.bands]
+                                if cal.thermal is not None else [])
+    if all(b is None or np.all(np.abs(b) <= MAX_GYRO_BIAS) for b in biases):
+        return
+    print(f'accel-calib: warning: gyro bias {np.round(cal.gyro_bias, 3).tolist()} exceeds '
+          f'{MAX_GYRO_BIAS:g} rad/s (are gx gy gz in rad/s?); not stored', file=sys.stderr)
+    cal.gyro_bias = None
+    if cal.thermal is not None:
+        for band in cal.thermal.bands:
+            band.gyro_bias = None
+
+
 def cmd_fit(args, out):
     _check_output(args.output, args.data)
     samples = _load(args)
@@ -344,6 +359,7 @@ def cmd_fit(args, out):
                  'dropped_windows': [] if obs is None else obs.dropped, 'output': None})
         raise
     raw_resid = np.sqrt(np.mean((np.linalg.norm(obs.readings, axis=1) - args.gravity) ** 2))
+    _drop_implausible_gyro_bias(cal)
     refusal = _accuracy_refusal(cal, args.max_predicted_error)
     if not cal.converged and not args.force:
         refusal = (f'the {cal.method} fit did not converge in {cal.iterations} iterations; '

@@ -423,3 +423,14 @@ def test_apply_refuses_rather_than_writing_non_finite(capsys, tmp_path, bad_file
         assert all(np.all(np.isfinite(data[n])) for n in data.dtype.names)
     else:
         assert code in (1, 2) and not out_file.exists()
+
+
+def test_gyro_in_the_wrong_unit_does_not_cost_the_calibration(capsys, tmp_path):
+    path, _, s = _session_file(tmp_path / 'deg.csv', random_directions(16,
+                               np.random.default_rng(6)), seed=6)
+    s.samples.gyro = np.degrees(s.samples.gyro) + 200.0          # deg/s with a big offset
+    peer_data.to_spec_csv(s.samples, path)
+    calib = tmp_path / 'c.yaml'
+    code, out, err = run(capsys, 'fit', path, '-o', calib, '--json')
+    assert code == 0 and 'rad/s' in err and json.loads(out)['gyro_bias'] is None
+    assert load_calibration(calib).gyro_bias is None

@@ -167,7 +167,8 @@ def detect_static_windows(samples, window_s=DEFAULTS['window_s'],
     :param trim_s: cut from each end of a still run, s.
     :param floor_quantile: quantile of the moving std taken as the noise floor.
     :param max_rotation_rad_s: with a gyro, still also means turning slower than
-        this (bias-free moving mean, rad/s); None or inf switches the gyro test off.
+        this (bias-free moving mean, rad/s) and than 5x the median rate of the
+        accelerometer-still samples; None or inf switches the gyro test off.
     :returns: StaticWindows (possibly empty), with the runs the gyro rejected in
         ``dropped``.
     """
@@ -184,7 +185,11 @@ def detect_static_windows(samples, window_s=DEFAULTS['window_s'],
     if max_rotation_rad_s is not None and np.isfinite(max_rotation_rad_s):
         spin = rotation_rate(samples, mask, window_s)
     if spin is not None:
-        turning = spin > max_rotation_rad_s
+        # Turning clearly faster than the recording's own still level (its gyro noise and
+        # hand tremor, or a gyro logged in other units), and than the limit.
+        level = float(np.median(spin[mask])) if mask.any() else 0.0
+        limit = max(max_rotation_rad_s, 5.0 * level)
+        turning = spin > limit
         new_starts, new_stops = [], []
         for a, b in zip(starts, stops):
             if not turning[a:b].any():
@@ -205,7 +210,7 @@ def detect_static_windows(samples, window_s=DEFAULTS['window_s'],
                                 't_stop': float(samples.t[b - 1]),
                                 'reason': f'rotating: gyro shows up to '
                                           f'{np.degrees(spin[a:b].max()):.1f} °/s '
-                                          f'(limit {np.degrees(max_rotation_rad_s):.1f} °/s)'})
+                                          f'(limit {np.degrees(limit):.1f} °/s)'})
         starts = np.asarray(new_starts, dtype=int)
         stops = np.asarray(new_stops, dtype=int)
     windows = windows_from_ranges(samples, starts, stops, floor)
