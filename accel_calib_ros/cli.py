@@ -13,7 +13,7 @@ import sys
 
 import numpy as np
 
-from .core.calibration import calibrate, Calibration, METHODS
+from .core.calibration import calibrate, METHODS
 from .core.errors import CalibrationError, InputError
 from .core.samples import Samples
 from .core.windows import DEFAULTS, detect_static_windows
@@ -41,20 +41,57 @@ def _add_data_args(p):
 
 def _add_window_args(p):
     g = p.add_argument_group('static windows')
-    g.add_argument('--min-window-s', type=float, default=DEFAULTS['min_duration_s'],
+    g.add_argument('--min-window-s', type=_ranged(0.01, 3600.0),
+                   default=DEFAULTS['min_duration_s'],
                    help='shortest static window kept after trimming its ends, s '
                         '(default %(default)s: poses held about 1.5 s or longer)')
-    g.add_argument('--threshold-factor', type=float, default=DEFAULTS['threshold_factor'],
+    g.add_argument('--threshold-factor', type=_ranged(1.0, 1e3),
+                   default=DEFAULTS['threshold_factor'],
                    help='still when moving std < factor x noise floor (default %(default)s)')
-    g.add_argument('--max-weight-s', type=float, default=MAX_WEIGHT_S,
+    g.add_argument('--max-weight-s', type=_ranged(1e-3, 1e6), default=MAX_WEIGHT_S,
                    help='cap of a window weight, seconds of samples (default %(default)s)')
 
 
+def _number(text):
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        raise argparse.ArgumentTypeError(f'not a number: {text!r}') from None
+    if not np.isfinite(value):
+        raise argparse.ArgumentTypeError(f'must be a finite number, got {text!r}')
+    return value
+
+
 def _positive(text):
-    value = float(text)
+    value = _number(text)
     if not value > 0:
         raise argparse.ArgumentTypeError(f'must be positive, got {text}')
     return value
+
+
+def _ranged(low, high, integer=False):
+    """Argparse type: a finite number (an integer with ``integer``) in [low, high]."""
+    def parse(text):
+        if integer:
+            try:
+                value = int(text, 10)
+            except (TypeError, ValueError):
+                raise argparse.ArgumentTypeError(f'not an integer: {text!r}') from None
+        else:
+            value = _number(text)
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f'must lie in [{low:g}, {high:g}], got {text}')
+        return value
+    parse.__name__ = 'integer' if integer else 'number'
+    return parse
+
+
+GRAVITY = _ranged(0.1, 100.0)
+"""Local gravity accepted, m/s² (1.0 allows data in units of g)."""
+TEMPERATURE = _ranged(-100.0, 200.0)
+SEED = _ranged(0, 2 ** 32 - 1, integer=True)
+MAX_SIMULATED_SAMPLES = 50_000_000
+MAX_POSES = 100_000
 
 
 def build_parser():
@@ -73,10 +110,17 @@ def build_parser():
                         'every row is one observation (default windows)')
     p.add_argument('--thermal', action='store_true',
                    help='also fit temperature-band drift tables (needs temp)')
-    p.add_argument('--band-width', type=_positive, default=10.0,
+    p.add_argument('--band-width', type=_ranged(0.1, 1000.0), default=10.0,
                    help='temperature band width, °C (default %(default)s)')
-    p.add_argument('--gravity', type=_positive, default=G0,
+    p.add_argument('--gravity', type=GRAVITY, default=G0,
                    help='local gravity magnitude, m/s² (default %(default)s)')
+    p.add_argument('--max-predicted-error', type=_ranged(1e-9, 1e3), default=0.02,
+                   metavar='M_S2',
+                   help='refuse a fit whose predicted accuracy (RMS error at 1 g over all '
+                        'orientations) is worse than this, m/s² (default %(default)s)')
+    p.add_argument('--force', action='store_true',
+                   help='write the calibration even if the fit did not converge (loud '
+                        'warning; JSON still says converged false)')
     p.add_argument('-o', '--output', help='write the calibration YAML here (atomically)')
     p.add_argument('--json', action='store_true', help='print one JSON object')
     _add_window_args(p)
@@ -93,18 +137,19 @@ def build_parser():
     p.add_argument('--poses', default='24',
                    help='number of random poses, "faces" (six faces) or "sunxu:N" '
                         '(Sun & Xu Euler-angle poses) (default 24)')
-    p.add_argument('--hold', type=_positive, default=3.0, help='seconds per pose')
-    p.add_argument('--move', type=_positive, default=1.5, help='seconds per move')
-    p.add_argument('--rate', type=_positive, default=100.0, help='sample rate, Hz')
-    p.add_argument('--temp', type=float, nargs='+', default=[25.0], metavar='C',
+    p.add_argument('--hold', type=_ranged(0.01, 3600.0), default=3.0, help='seconds per pose')
+    p.add_argument('--move', type=_ranged(0.01, 3600.0), default=1.5, help='seconds per move')
+    p.add_argument('--rate', type=_ranged(1.0, 100000.0), default=100.0,
+                   help='sample rate, Hz')
+    p.add_argument('--temp', type=TEMPERATURE, nargs='+', default=[25.0], metavar='C',
                    help='temperature, °C: one value, or START END for a ramp')
     p.add_argument('--effects', default='',
                    help='comma-separated extra effects: scale_nonlinearity, '
                         'temperature_bias, temperature_scale, bias_drift')
     p.add_argument('--orthogonal', action='store_true',
                    help='no non-orthogonality (diagonal T, the GN model)')
-    p.add_argument('--gravity', type=_positive, default=G0, help='gravity, m/s²')
-    p.add_argument('--seed', type=int, default=0, help='random seed')
+    p.add_argument('--gravity', type=GRAVITY, default=G0, help='gravity, m/s²')
+    p.add_argument('--seed', type=SEED, default=0, help='random seed (0 to 2**32-1)')
     p.add_argument('--truth', help='write the true sensor parameters to this YAML')
     p.add_argument('--json', action='store_true', help='print one JSON object')
 
@@ -112,7 +157,7 @@ def build_parser():
     _add_data_args(p)
     p.add_argument('--baseline', choices=('gn', 'ml'), default='ml')
     p.add_argument('--report', help='folder for PNG plots and a Markdown summary')
-    p.add_argument('--gravity', type=_positive, default=G0, help='gravity, m/s²')
+    p.add_argument('--gravity', type=GRAVITY, default=G0, help='gravity, m/s²')
     p.add_argument('--json', action='store_true', help='print one JSON object')
     _add_window_args(p)
 
@@ -134,19 +179,74 @@ def _load(args):
     return load_samples(args.data, imu_topic=args.imu_topic, temp_topic=args.temp_topic)
 
 
+def _same_file(a, b):
+    """Return True when paths ``a`` and ``b`` name the same file (or would)."""
+    a, b = os.path.expanduser(os.fspath(a)), os.path.expanduser(os.fspath(b))
+    try:
+        if os.path.exists(a) and os.path.exists(b):
+            return os.path.samefile(a, b)
+    except OSError:
+        pass
+    return os.path.realpath(a) == os.path.realpath(b)
+
+
+def _check_output(output, *inputs, what='output'):
+    """Raise UsageError when ``output`` is one of ``inputs`` (it would destroy it)."""
+    if not output:
+        return
+    if os.path.isdir(os.path.expanduser(output)):
+        raise UsageError(f'accel-calib: {what} {output} is a directory')
+    for path in inputs:
+        if path and _same_file(output, path):
+            raise UsageError(f'accel-calib: {what} {output} is the input {path}; '
+                             'writing it would destroy the input: choose another name')
+
+
+class _Observations:
+    """Observations for the fit, with what was left out (mode, windows, reasons)."""
+
+    def __init__(self, **kw):
+        self.__dict__.update(kw)
+
+
 def _observations(samples, args):
-    """Return readings, weights, temperatures and noise for the chosen mode."""
+    """Return the observations for the chosen mode, outlier windows dropped."""
     if getattr(args, 'mode', 'windows') == 'samples':
-        return samples.accel, None, samples.temp, None, len(samples)
+        return _Observations(readings=samples.accel, weights=None, temps=samples.temp,
+                             noise=None, count=len(samples), gyro=None, dropped=[],
+                             mean_count=1.0)
     windows = detect_static_windows(samples, min_duration_s=args.min_window_s,
                                     threshold_factor=args.threshold_factor)
     if len(windows) == 0:
         raise CalibrationError(
             'no static windows found: hold each pose still for at least '
             f'{args.min_window_s + 2 * DEFAULTS["trim_s"] + DEFAULTS["window_s"]:g} s '
-            '(or use --mode samples for a moving recording)')
+            '(or use --mode samples for a moving recording)'
+            + (f'; {len(windows.dropped)} still stretches were dropped because the gyro '
+               'shows rotation' if windows.dropped else ''))
     weights = windows.weights(args.max_weight_s, samples.rate_hz)
-    return windows.mean, weights, windows.temp, windows.noise_std, len(windows)
+    dropped = list(windows.dropped)
+    from .core.calibration import find_outlier_windows
+    keep, outliers = find_outlier_windows(
+        windows.mean, weights, windows.count, windows.noise_std, args.gravity,
+        windows.temp, getattr(args, 'thermal', False), getattr(args, 'band_width', 10.0),
+        getattr(args, 'method', 'ml'))
+    for k, reason in outliers:
+        dropped.append({'t_start': float(samples.t[windows.start[k]]),
+                        't_stop': float(samples.t[windows.stop[k] - 1]), 'reason': reason})
+    windows = windows.select(keep)
+    dropped.sort(key=lambda d: d['t_start'])
+    return _Observations(readings=windows.mean, weights=weights[keep], temps=windows.temp,
+                         noise=windows.noise_std, count=len(windows),
+                         gyro=windows.gyro_mean, dropped=dropped,
+                         mean_count=float(np.mean(windows.count)) if len(windows) else 1.0)
+
+
+def _band_dict(band):
+    d = band.to_dict()
+    d['usable'] = band.status == 'ok'
+    d['why_not'] = None if band.status == 'ok' else band.status
+    return d
 
 
 def _fit_summary(cal, extra):
@@ -155,76 +255,196 @@ def _fit_summary(cal, extra):
          'observations': cal.observations, 'converged': cal.converged, 'seconds': cal.seconds,
          'gravity': cal.gravity, 'scale': cal.scale.tolist(),
          'nonorthogonality_deg': cal.nonorthogonality_deg.tolist(),
-         'noise_std': [None if not np.isfinite(v) else float(v) for v in cal.noise_std]}
+         'noise_std': [None if not np.isfinite(v) else float(v) for v in cal.noise_std],
+         'predicted_accuracy': cal.predicted_accuracy,
+         'gyro_bias': None if cal.gyro_bias is None else cal.gyro_bias.tolist(),
+         'temperature_range_c': (None if cal.temperature_range_c is None
+                                 else list(cal.temperature_range_c))}
     if cal.covariance is not None:
         d['stddev'] = np.sqrt(np.maximum(np.diag(cal.covariance), 0)).tolist()
     if cal.thermal is not None:
         d['thermal'] = cal.thermal.to_dict()
+        d['thermal']['bands'] = [_band_dict(b) for b in cal.thermal.bands]
     d.update(extra)
     return d
 
 
-def cmd_fit(args, out):
-    samples = _load(args)
-    readings, weights, temps, noise, n_obs = _observations(samples, args)
-    cal = calibrate(readings, gravity=args.gravity, method=args.method, weights=weights,
-                    temps=temps, thermal=args.thermal, band_width_c=args.band_width,
-                    noise_std=noise, source=os.path.basename(args.data))
-    raw_resid = np.sqrt(np.mean((np.linalg.norm(readings, axis=1) - args.gravity) ** 2))
-    extra = {'mode': args.mode, 'samples': len(samples), 'residual_rms_uncalibrated': raw_resid,
-             'output': args.output}
-    if args.output:
-        cal.save(args.output)
-    for problem in cal.physical_problems():
-        print(f'accel-calib: warning: {problem} (are the data in m/s²?)', file=sys.stderr)
-    summary = _fit_summary(cal, extra)
-    if args.json:
-        out(summary)
-        return 0
-    print(f'{cal.method} fit of {n_obs} {"windows" if args.mode == "windows" else "samples"} '
-          f'({len(samples)} samples): {"converged" if cal.converged else "NOT converged"} '
+def _accuracy_refusal(cal, limit):
+    """Reason the fit is not good enough (None when it is), naming the missing poses."""
+    acc = cal.predicted_accuracy
+    if acc is not None and np.isfinite(acc) and acc <= limit:
+        return None
+    from .core.accuracy import worst_faces
+    try:
+        with np.errstate(all='ignore'):
+            faces = [f for f in worst_faces(cal.T, cal.covariance, cal.gravity)
+                     if not f[2] <= limit][:3]
+    except (np.linalg.LinAlgError, ValueError, TypeError):
+        faces = []
+    value = 'unknown' if acc is None or not np.isfinite(acc) else f'{acc:.4f} m/s²'
+    hint = ('; the poses do not pin the calibration down for: '
+            + ', '.join(f'{name} (predicted error {err:.3g} m/s²)' if np.isfinite(err)
+                        else name for name, _, err in faces)
+            + ' - hold the sensor that way (still, a few seconds each) and record again'
+            if faces else '; hold more distinct poses (each axis up and down) and record again')
+    return (f'predicted accuracy {value} is worse than the limit {limit:g} m/s² '
+            f'(--max-predicted-error){hint}')
+
+
+def _print_fit(cal, summary, n_obs, mode, samples, dropped, out_path):
+    print(f'{cal.method} fit of {n_obs} {"windows" if mode == "windows" else "samples"} '
+          f'({samples} samples): {"converged" if cal.converged else "NOT converged"} '
           f'in {cal.iterations} iterations, {cal.seconds * 1e3:.1f} ms')
     with np.printoptions(precision=6, suppress=True):
         print(f'T (raw = T·true + bias):\n{cal.T}')
         print(f'bias [m/s²]: {cal.bias}')
         print(f'scale: {cal.scale}   non-orthogonality [deg] xy xz yz: '
               f'{cal.nonorthogonality_deg}')
+        if cal.gyro_bias is not None:
+            print(f'gyro bias [rad/s]: {cal.gyro_bias}')
     print(f'gravity-norm residual RMS: {cal.residual_rms:.5f} m/s² '
-          f'(uncalibrated {raw_resid:.5f} m/s²)')
+          f'(uncalibrated {summary["residual_rms_uncalibrated"]:.5f} m/s²)')
+    acc = cal.predicted_accuracy
+    print(f'predicted accuracy: {acc:.5f} m/s² RMS at 1 g over all orientations '
+          f'(limit {summary["max_predicted_error"]:g} m/s²)' if acc is not None
+          and np.isfinite(acc) else 'predicted accuracy: unknown (the poses do not '
+          'determine the calibration)')
+    if dropped:
+        print(f'dropped {len(dropped)} window(s):')
+        for d in dropped:
+            print(f'  {d["t_start"]:9.2f} .. {d["t_stop"]:9.2f} s: {d["reason"]}')
+    if cal.temperature_range_c is not None:
+        print(f'temperature range: {cal.temperature_range_c[0]:.1f} .. '
+              f'{cal.temperature_range_c[1]:.1f} °C')
     if cal.thermal is not None:
         for band in cal.thermal.bands:
             print(f'  band {band.low_c:5.1f}..{band.high_c:5.1f} °C: {band.windows:3d} windows,'
-                  f' {band.status}')
-    if args.output:
-        print(f'wrote {args.output}')
+                  f' {"usable" if band.status == "ok" else "not usable: " + band.status}')
+    if out_path:
+        print(f'wrote {out_path}')
+
+
+def _drop_implausible_gyro_bias(cal):
+    """Leave out a gyro bias no rad/s gyro has (the accelerometer fit still counts)."""
+    from .dataio.calibration_file import MAX_GYRO_BIAS
+    biases = [cal.gyro_bias] + ([b.gyro_bias for b in cal.thermal.bands]
+                                if cal.thermal is not None else [])
+    if all(b is None or np.all(np.abs(b) <= MAX_GYRO_BIAS) for b in biases):
+        return
+    print(f'accel-calib: warning: gyro bias {np.round(cal.gyro_bias, 3).tolist()} exceeds '
+          f'{MAX_GYRO_BIAS:g} rad/s (are gx gy gz in rad/s?); not stored', file=sys.stderr)
+    cal.gyro_bias = None
+    if cal.thermal is not None:
+        for band in cal.thermal.bands:
+            band.gyro_bias = None
+
+
+def cmd_fit(args, out):
+    _check_output(args.output, args.data)
+    samples = _load(args)
+    obs = None
+    try:
+        obs = _observations(samples, args)
+        cal = calibrate(obs.readings, gravity=args.gravity, method=args.method,
+                        weights=obs.weights, temps=obs.temps, thermal=args.thermal,
+                        band_width_c=args.band_width, noise_std=obs.noise,
+                        source=os.path.basename(args.data), gyro_means=obs.gyro,
+                        mean_count=obs.mean_count)
+    except CalibrationError as err:
+        if args.json:       # still exactly one JSON object, saying why
+            out({'method': args.method, 'mode': args.mode, 'samples': len(samples),
+                 'observations': 0 if obs is None else obs.count, 'accepted': False,
+                 'refusal': str(err), 'converged': False, 'predicted_accuracy': None,
+                 'max_predicted_error': args.max_predicted_error,
+                 'dropped_windows': [] if obs is None else obs.dropped, 'output': None})
+        raise
+    raw_resid = np.sqrt(np.mean((np.linalg.norm(obs.readings, axis=1) - args.gravity) ** 2))
+    _drop_implausible_gyro_bias(cal)
+    refusal = _accuracy_refusal(cal, args.max_predicted_error)
+    if not cal.converged and not args.force:
+        refusal = (f'the {cal.method} fit did not converge in {cal.iterations} iterations; '
+                   'nothing written (' + (refusal or 'add more distinct poses, or --force to '
+                                          'write it anyway') + ')')
+    extra = {'mode': args.mode, 'samples': len(samples), 'residual_rms_uncalibrated': raw_resid,
+             'max_predicted_error': args.max_predicted_error, 'accepted': refusal is None,
+             'refusal': refusal, 'dropped_windows': obs.dropped,
+             'output': args.output if refusal is None else None}
+    if refusal is None and not cal.converged:
+        print(f'accel-calib: WARNING: the {cal.method} fit did NOT converge in '
+              f'{cal.iterations} iterations; writing it only because of --force. Do not '
+              'trust this calibration.', file=sys.stderr)
+    if refusal is None and cal.method == 'gn' and cal.observations < 10:
+        print(f'accel-calib: warning: the 6-parameter gn model assumes orthogonal axes; '
+              f'{cal.observations} poses cannot check that, so the predicted accuracy leaves '
+              'out any cross-axis error (up to ±2 % on an MPU-9250: hold 10 or more poses, '
+              'or use ml)', file=sys.stderr)
+    for problem in cal.physical_problems() if refusal is None else []:
+        print(f'accel-calib: warning: {problem} (are the data in m/s²?)', file=sys.stderr)
+    if refusal is None and args.output:
+        from .dataio.calibration_file import save_calibration
+        save_calibration(cal, args.output)
+    summary = _fit_summary(cal, extra)
+    if args.json:
+        out(summary)
+    else:
+        _print_fit(cal, summary, obs.count, args.mode, len(samples), obs.dropped,
+                   args.output if refusal is None else None)
+    if refusal is not None:
+        raise CalibrationError(refusal)
     return 0
 
 
 def cmd_apply(args, out):
     from .dataio.recording import write_samples_csv
-    cal = Calibration.load(args.calibration)
+    _check_output(args.output, args.calibration, args.data)
+    from .dataio.calibration_file import load_calibration
+    cal = load_calibration(args.calibration)
     samples = _load(args)
     if cal.thermal is not None and cal.thermal.usable and samples.temp is None:
         print('accel-calib: warning: calibration has temperature tables but the data have '
               'no temperature; applying without drift correction', file=sys.stderr)
-    corrected = cal.correct(samples.accel, samples.temp)
-    write_samples_csv(args.output, Samples(samples.t, corrected, samples.temp, samples.gyro))
+    outside = 0
+    if cal.temperature_range_c is not None and samples.temp is not None:
+        lo, hi = cal.temperature_range_c
+        outside = int(np.sum((samples.temp < lo - 1.0) | (samples.temp > hi + 1.0)))
+        if outside:
+            print(f'accel-calib: warning: {outside} samples lie outside the calibrated '
+                  f'temperature range {lo:.1f} .. {hi:.1f} °C', file=sys.stderr)
+    with np.errstate(all='ignore'):
+        corrected = cal.correct(samples.accel, samples.temp)
+        gyro = samples.gyro
+        if gyro is not None:
+            gyro = cal.correct_gyro(gyro, samples.temp)
+    bad = ~np.all(np.isfinite(corrected), axis=1)
+    if gyro is not None:
+        bad |= ~np.all(np.isfinite(gyro), axis=1)
+    if bad.any():
+        raise InputError(f'{int(bad.sum())} rows would be non-finite after correction (first '
+                         f't={samples.t[np.argmax(bad)]:.3f} s): the data or the calibration '
+                         'are out of range; nothing written')
+    write_samples_csv(args.output, Samples(samples.t, corrected, samples.temp, gyro))
     norm_before = np.linalg.norm(samples.accel, axis=1)
     norm_after = np.linalg.norm(corrected, axis=1)
     summary = {'output': args.output, 'samples': len(samples), 'calibration': args.calibration,
                'mean_norm_before': float(norm_before.mean()),
-               'mean_norm_after': float(norm_after.mean())}
+               'mean_norm_after': float(norm_after.mean()),
+               'gyro_bias_subtracted': gyro is not None and cal.gyro_bias is not None,
+               'samples_outside_temperature_range': outside}
     if args.json:
         out(summary)
     else:
         print(f'corrected {len(samples)} samples -> {args.output} '
-              f'(mean |a| {norm_before.mean():.4f} -> {norm_after.mean():.4f} m/s²)')
+              f'(mean |a| {norm_before.mean():.4f} -> {norm_after.mean():.4f} m/s²'
+              + (', gyro bias subtracted' if summary['gyro_bias_subtracted'] else '') + ')')
     return 0
 
 
 def cmd_simulate(args, out):
     from .core import simulate as sim
     from .dataio.recording import write_bag, write_samples_csv
+    _check_output(args.truth, args.output, what='--truth')
+    if args.output and os.path.isdir(os.path.expanduser(args.output)):
+        raise UsageError(f'accel-calib: output {args.output} is a directory')
     rng = np.random.default_rng(args.seed)
     effects = [e.strip() for e in args.effects.split(',') if e.strip()]
     known = ('scale_nonlinearity', 'temperature_bias', 'temperature_scale', 'bias_drift',
@@ -237,19 +457,25 @@ def cmd_simulate(args, out):
         sensor.T = np.diag(np.diag(sensor.T))
     if args.poses == 'faces':
         directions = sim.face_directions()
-    elif args.poses.startswith('sunxu:'):
-        directions = sim.sun_xu_directions(int(args.poses[6:]), rng)
     else:
+        sunxu = args.poses.startswith('sunxu:')
+        text = args.poses[6:] if sunxu else args.poses
         try:
-            count = int(args.poses)
+            count = int(text, 10)
         except ValueError:
-            raise UsageError(f'--poses takes a number, "faces" or "sunxu:N", '
-                             f'not {args.poses!r}') from None
-        if count < 1:
-            raise UsageError('--poses must be at least 1')
-        directions = sim.random_directions(count, rng)
+            raise UsageError(f'accel-calib: --poses takes a number, "faces" or "sunxu:N", '
+                             f'not {args.poses[:40]!r}') from None
+        if not 1 <= count <= MAX_POSES:
+            raise UsageError(f'accel-calib: --poses must lie in [1, {MAX_POSES}], got {count}')
+        directions = (sim.sun_xu_directions(count, rng) if sunxu
+                      else sim.random_directions(count, rng))
     if len(args.temp) not in (1, 2):
-        raise UsageError('--temp takes one value or START END')
+        raise UsageError('accel-calib: --temp takes one value or START END')
+    total = len(directions) * (args.hold + args.move) * args.rate + args.hold * args.rate
+    if total > MAX_SIMULATED_SAMPLES:
+        raise UsageError(f'accel-calib: that session would have {total:.3g} samples; the '
+                         f'limit is {MAX_SIMULATED_SAMPLES:.3g} (fewer poses, shorter holds '
+                         'or a lower --rate)')
     temperature = args.temp[0] if len(args.temp) == 1 else tuple(args.temp)
     session = sim.simulate_session(sensor, directions, rng, hold_s=args.hold, move_s=args.move,
                                    rate_hz=args.rate, gravity=args.gravity,
@@ -281,11 +507,17 @@ def sensor_to_dict(sensor, gravity):
             'bias_tempco_m_s2_per_c': sensor.bias_tempco.tolist(),
             'scale_tempco_per_c': sensor.scale_tempco.tolist(),
             'bias_drift_m_s2_per_s': sensor.bias_drift.tolist(),
-            'temp_ref_c': float(sensor.temp_ref), 'gravity_m_s2': float(gravity)}
+            'temp_ref_c': float(sensor.temp_ref), 'gravity_m_s2': float(gravity),
+            'gyro_bias_rad_s': np.asarray(getattr(sensor, 'gyro_bias', np.zeros(3)),
+                                          float).tolist()}
 
 
 def cmd_diagnose(args, out):
     from .core.diagnose import diagnose
+    if args.report:
+        _check_output(os.path.join(args.report, 'report.md'), args.data, what='report')
+        if os.path.exists(args.report) and not os.path.isdir(args.report):
+            raise UsageError(f'accel-calib: --report {args.report} exists and is not a folder')
     samples = _load(args)
     result = diagnose(samples, baseline=args.baseline, gravity=args.gravity,
                       min_duration_s=args.min_window_s,
@@ -303,9 +535,39 @@ def cmd_diagnose(args, out):
     return 0
 
 
+def _check_device_args(args):
+    """Validate the simulate-device options the device module parses loosely."""
+    def need(ok, message):
+        if not ok:
+            raise UsageError(f'accel-calib simulate-device: {message}')
+
+    def finite(name, low, high):
+        value = getattr(args, name, None)
+        if value is None:
+            return
+        for v in np.atleast_1d(value):
+            need(np.isfinite(v) and low <= v <= high,
+                 f'--{name.replace("_", "-")} must lie in [{low:g}, {high:g}], got {v}')
+
+    finite('seed', 0, 2 ** 32 - 1)
+    finite('rate', 1.0, 100000.0)
+    finite('hold', 0.01, 3600.0)
+    finite('move', 0.01, 3600.0)
+    finite('temp', -100.0, 200.0)
+    finite('temp_ramp', -100.0, 200.0)
+    finite('gravity', 0.1, 100.0)
+    finite('count', 1, MAX_POSES)
+    finite('t0_us', 0, 2 ** 32 - 1)
+    finite('duration', 1e-3, 1e7)
+    finite('unplug_s', 0.0, 3600.0)
+    _check_output(getattr(args, 'truth_out', None), getattr(args, 'link', None),
+                  what='--truth-out')
+
+
 def cmd_simulate_device(args, out):
     if args.run_device is None:
         raise UsageError(f'simulate-device is not available: {args.device_error}')
+    _check_device_args(args)
     return args.run_device(args)
 
 

@@ -1,5 +1,5 @@
 """
-The calibration model: fit it, apply it, check it, save and load it.
+Fit the calibration model to static observations.
 
 Convention (spec section 3)::
 
@@ -8,216 +8,26 @@ Convention (spec section 3)::
 
 ``T`` is upper triangular and dimensionless (scale x non-orthogonality, Sun & Xu
 eq. 1-4), ``bias`` in m/s², ``drift`` from the temperature-band tables (zero when
-there are none). Files are versioned, human-readable YAML with units in the keys.
+there are none). The :class:`~accel_calib_ros.core.model.Calibration` data class
+lives in ``core.model`` (re-exported here); files are read and written by
+``accel_calib_ros.dataio.calibration_file``.
 """
 
-from dataclasses import dataclass, field
-import datetime
-import os
 import time
 
 import numpy as np
-import yaml
 
+from .accuracy import fisher_information, predicted_accuracy
 from .ellipsoid import fit_ellipsoid
 from .errors import CalibrationError, InputError
 from .gn import fit_gn
-from .ml import fit_ml, fit_ml_bias_corrected, PARAMETER_NAMES
-from .thermal import fit_thermal_table, ThermalTable
+from .ml import fit_ml, fit_ml_bias_corrected
+from .model import Calibration, METHODS
+from .thermal import fit_thermal_table
 from .windows import distinct_directions
 
-FORMAT = 'accel_calib_ros/calibration'
-VERSION = 1
-METHODS = ('ml', 'ml-bc', 'gn', 'ellipsoid')
-
-
-@dataclass
-class Calibration:
-    """
-    A fitted accelerometer calibration (see module docstring for the model).
-
-    :param T: (3, 3) upper triangular, dimensionless.
-    :param bias: (3,) m/s².
-    :param gravity: local gravity magnitude used for the fit, m/s².
-    :param covariance: (9, 9) covariance of (T upper row-major, bias), or None.
-    :param residual_rms: RMS of |corrected| - gravity over the observations, m/s².
-    :param noise_std: (3,) per-sample noise measured inside static windows, m/s².
-    """
-
-    T: np.ndarray
-    bias: np.ndarray
-    gravity: float = 9.80665
-    method: str = 'ml'
-    covariance: np.ndarray = None
-    residual_rms: float = float('nan')
-    noise_std: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
-    observations: int = 0
-    iterations: int = 0
-    converged: bool = True
-    seconds: float = 0.0
-    trace: list = field(default_factory=list)
-    thermal: ThermalTable = None
-    created: str = ''
-    source: str = ''
-
-    def __post_init__(self):
-        self.T = np.asarray(self.T, dtype=float).reshape(3, 3)
-        self.bias = np.asarray(self.bias, dtype=float).reshape(3)
-        self.noise_std = np.broadcast_to(np.asarray(self.noise_std, float), (3,)).copy()
-        if not self.created:
-            self.created = datetime.datetime.now(datetime.timezone.utc).isoformat(
-                timespec='seconds')
-
-    # -- physics -----------------------------------------------------------------------
-    @property
-    def scale(self):
-        """Sensitivity of each axis (row norms of T), raw per true, dimensionless (3,)."""
-        return np.linalg.norm(self.T, axis=1)
-
-    @property
-    def nonorthogonality_deg(self):
-        """Angles between the sensitive axes minus 90°, (xy, xz, yz) in degrees."""
-        axes = self.T / self.scale[:, None]
-        pairs = ((0, 1), (0, 2), (1, 2))
-        return np.array([90.0 - np.degrees(np.arccos(np.clip(axes[i] @ axes[j], -1, 1)))
-                         for i, j in pairs])
-
-    def drift(self, raw, temp=None):
-        """Return the temperature drift, m/s² (N, 3), of raw readings (N, 3) at temps °C (N,)."""
-        raw = np.atleast_2d(np.asarray(raw, float))
-        if self.thermal is None or temp is None:
-            return np.zeros_like(raw)
-        return self.thermal.drift(raw, temp)
-
-    def correct(self, raw, temp=None):
-        """Calibrated acceleration (N, 3) m/s² from raw readings (N, 3) m/s²."""
-        raw = np.atleast_2d(np.asarray(raw, float))
-        return np.linalg.solve(self.T, (raw - self.bias - self.drift(raw, temp)).T).T
-
-    def distort(self, true, temp=None):
-        """Raw readings (N, 3) that this model predicts for true acceleration (N, 3)."""
-        true = np.atleast_2d(np.asarray(true, float))
-        raw = true @ self.T.T + self.bias
-        if self.thermal is not None and temp is not None:
-            for _ in range(4):            # drift depends on raw: fixed point, converges fast
-                raw = true @ self.T.T + self.bias + self.drift(raw, temp)
-        return raw
-
-    def acceleration_covariance(self):
-        """
-        3x3 covariance of one corrected sample at rest, (m/s²)², row-major.
-
-        Sensor noise mapped through T⁻¹ plus the parameter uncertainty propagated to
-        a gravity-sized vector, averaged over directions.
-        """
-        R = np.linalg.inv(self.T)
-        noise = np.where(np.isfinite(self.noise_std), self.noise_std, 0.0)
-        cov = R @ np.diag(noise ** 2) @ R.T
-        if self.covariance is not None and np.all(np.isfinite(self.covariance)):
-            rows, cols = np.triu_indices(3)
-            acc = np.zeros((3, 3))
-            for a0 in np.vstack([np.eye(3), -np.eye(3)]) * self.gravity:
-                J = np.zeros((3, 9))
-                for k, (i, j) in enumerate(zip(rows, cols)):
-                    J[:, k] = -R[:, i] * a0[j]
-                J[:, 6:] = -R
-                acc += J @ self.covariance @ J.T
-            cov = cov + acc / 6.0
-        return cov
-
-    def physical_problems(self, max_scale_error=0.2, max_cross_axis=0.1, max_bias_g=0.25):
-        """Reasons this calibration is not physical for an accelerometer in m/s², or []."""
-        problems = []
-        scale_error = np.abs(np.diag(self.T) - 1.0)
-        if np.any(scale_error > max_scale_error):
-            problems.append(f'scale error {scale_error.max():.1%} exceeds '
-                            f'{max_scale_error:.0%}')
-        cross = np.abs(self.T[np.triu_indices(3, 1)]) / np.diag(self.T)[[0, 0, 1]]
-        if np.any(cross > max_cross_axis):
-            problems.append(f'cross-axis term {cross.max():.1%} exceeds {max_cross_axis:.0%}')
-        if np.any(np.abs(self.bias) > max_bias_g * self.gravity):
-            problems.append(f'bias {np.abs(self.bias).max():.2f} m/s² exceeds '
-                            f'{max_bias_g} g')
-        return problems
-
-    # -- files -------------------------------------------------------------------------
-    def to_dict(self):
-        """Versioned, YAML-ready mapping with units in the key names."""
-        d = {
-            'format': FORMAT, 'version': VERSION, 'created': self.created, 'source': self.source,
-            'model': 'raw = T @ true + bias + drift(raw, temp); '
-            'true = inv(T) @ (raw - bias - drift(raw, temp))',
-            'method': self.method, 'gravity_m_s2': float(self.gravity),
-            'T': [[float(v) for v in row] for row in self.T],
-            'bias_m_s2': [float(v) for v in self.bias],
-            'scale': [float(v) for v in self.scale],
-            'nonorthogonality_deg': dict(zip(('xy', 'xz', 'yz'),
-                                             (float(v) for v in self.nonorthogonality_deg))),
-            'fit': {'observations': int(self.observations), 'iterations': int(self.iterations),
-                    'converged': bool(self.converged), 'seconds': float(self.seconds),
-                    'residual_rms_m_s2': float(self.residual_rms),
-                    'noise_std_m_s2': [float(v) for v in self.noise_std]},
-        }
-        if self.covariance is not None:
-            d['covariance'] = {
-                'order': list(PARAMETER_NAMES), 'units': 'T dimensionless, b in m/s2',
-                'matrix': [[float(v) for v in row] for row in self.covariance]}
-        if self.thermal is not None:
-            d['thermal'] = self.thermal.to_dict()
-        return d
-
-    @classmethod
-    def from_dict(cls, d):
-        """Build from :meth:`to_dict` output; InputError on anything malformed."""
-        if not isinstance(d, dict) or d.get('format') != FORMAT:
-            raise InputError(f'not an accel_calib_ros calibration file (format != {FORMAT})')
-        if d.get('version') != VERSION:
-            raise InputError(f'calibration file version {d.get("version")} is not supported '
-                             f'(this is version {VERSION})')
-        try:
-            fit = d.get('fit', {})
-            cov = d.get('covariance')
-            cal = cls(
-                T=np.asarray(d['T'], float), bias=np.asarray(d['bias_m_s2'], float),
-                gravity=float(d['gravity_m_s2']), method=str(d['method']),
-                covariance=None if cov is None else np.asarray(cov['matrix'], float),
-                residual_rms=float(fit.get('residual_rms_m_s2', float('nan'))),
-                noise_std=np.asarray(fit.get('noise_std_m_s2', [np.nan] * 3), float),
-                observations=int(fit.get('observations', 0)),
-                iterations=int(fit.get('iterations', 0)),
-                converged=bool(fit.get('converged', True)),
-                seconds=float(fit.get('seconds', 0.0)),
-                thermal=ThermalTable.from_dict(d['thermal']) if d.get('thermal') else None,
-                created=str(d.get('created', '')), source=str(d.get('source', '')))
-        except (KeyError, TypeError, ValueError) as err:
-            raise InputError(f'calibration file is malformed: {err!r}') from None
-        if not np.all(np.isfinite(cal.T)) or np.any(np.diag(cal.T) <= 0) \
-                or np.any(np.tril(cal.T, -1) != 0) or not np.all(np.isfinite(cal.bias)):
-            raise InputError('calibration file holds a non-physical T or bias')
-        return cal
-
-    def to_yaml(self):
-        """YAML text of :meth:`to_dict`."""
-        return yaml.safe_dump(self.to_dict(), sort_keys=False, default_flow_style=None,
-                              width=100)
-
-    def save(self, path):
-        """Write the calibration atomically (a reader never sees a half-written file)."""
-        from ..dataio.atomic import atomic_write_text
-        atomic_write_text(path, self.to_yaml())
-
-    @classmethod
-    def load(cls, path):
-        """Read a calibration file; InputError with a one-line reason if unusable."""
-        try:
-            with open(path, encoding='utf-8') as f:
-                data = yaml.safe_load(f)
-        except FileNotFoundError:
-            raise InputError(f'calibration file not found: {path}') from None
-        except (OSError, yaml.YAMLError) as err:
-            raise InputError(f'cannot read calibration file {path}: '
-                             f'{str(err).splitlines()[0]}') from None
-        return cls.from_dict(data)
+__all__ = ['Calibration', 'METHODS', 'calibrate', 'check_geometry', 'estimate_gyro_bias',
+           'find_outlier_windows', 'gravity_residuals', 'missing_faces', 'parameter_covariance']
 
 
 def gravity_residuals(cal_or_T, bias, readings, gravity, temps=None):
@@ -237,16 +47,36 @@ def check_geometry(readings, method):
         raise CalibrationError(
             f'{n} static observations; method {method} needs at least {need_obs} '
             f'in {need_dirs} distinct orientations: hold more poses')
-    centred = readings - np.median(readings, axis=0)
-    dirs = distinct_directions(readings - (readings.max(0) + readings.min(0)) / 2, 15.0)
+    # Directions of the raw readings themselves: the bias is small next to gravity, and
+    # centring on the data (as an ellipsoid fit would) turns the noise cloud of a single
+    # pose into "many directions".
+    dirs = distinct_directions(readings, 15.0)
     if dirs < need_dirs:
+        missing = missing_faces(readings)
         raise CalibrationError(
             f'only {dirs} distinct orientations among {n} observations; method {method} '
-            f'needs {need_dirs}: turn the sensor so each axis points up and down')
+            f'needs {need_dirs}: '
+            + (f'no pose had the {", the ".join(missing)}; hold those poses (still, a few '
+               'seconds each) and record again' if missing else
+               'turn the sensor so each axis points up and down'))
+    centred = readings - np.median(readings, axis=0)
     spread = np.linalg.svd(centred / (np.linalg.norm(centred, axis=1).max() + 1e-300),
                            compute_uv=False)
     if spread[-1] < 1e-3 * spread[0]:
         raise CalibrationError('all orientations lie in one plane: tilt the sensor out of it')
+
+
+def missing_faces(readings, within_deg=50.0):
+    """
+    Names of the faces ('x axis up', ...) no observation came within ``within_deg`` of.
+
+    :param readings: (N, 3) raw readings; their direction is the sensor axis pointing up.
+    """
+    from .accuracy import FACE_DIRECTIONS, FACE_NAMES
+    y = np.asarray(readings, float).reshape(-1, 3)
+    u = y / np.maximum(np.linalg.norm(y, axis=1, keepdims=True), 1e-300)
+    best = (u @ FACE_DIRECTIONS.T).max(axis=0)
+    return [name for name, c in zip(FACE_NAMES, best) if c < np.cos(np.radians(within_deg))]
 
 
 THERMAL_ROUNDS = 4
@@ -274,8 +104,92 @@ def _fit_reference(y, gravity, method, weights):
     return T, bias, cov, info
 
 
+def _unit_weights(weights, n):
+    w = np.ones(n) if weights is None else np.asarray(weights, float).reshape(n)
+    return w / np.mean(w)
+
+
+def parameter_covariance(y, T, bias, gravity, method, weights=None, noise_std=None,
+                         mean_count=None):
+    """
+    Covariance (9, 9) of (T upper, bias) at the fitted parameters, with noise from the data.
+
+    The information matrix is the ML one (``accuracy.fisher_information``) for every
+    method, restricted to the parameters the method fits (GN: the diagonal of T and the
+    bias; the others are held and get zero variance). The noise per unit weight is the
+    larger of the residual scatter about the fitted ellipsoid (model errors included)
+    and the within-window noise (``noise_std`` / sqrt(mean samples per window)), so a
+    fit with few spare observations cannot look better than its sensor.
+
+    :param y: (N, 3) observations, reading units.
+    :param noise_std: (3,) per-sample noise, reading units, or None.
+    :param mean_count: mean samples per observation behind ``noise_std`` (1 for samples).
+    :returns: (covariance (9, 9), sigma per unit weight, reading units).
+    """
+    n = len(y)
+    w = _unit_weights(weights, n)
+    F, u = fisher_information(T, bias, y, w, gravity)
+    idx = [0, 3, 5, 6, 7, 8] if method == 'gn' else list(range(9))
+    ideal = gravity * u @ np.asarray(T).T + bias
+    resid = np.linalg.norm(y - ideal, axis=1)
+    sigmas = []
+    if n > len(idx):
+        sigmas.append(np.sqrt(np.sum(w * resid ** 2) / (n - len(idx))))
+    if noise_std is not None and np.all(np.isfinite(noise_std)):
+        per_sample = float(np.sqrt(np.mean(np.square(noise_std))))
+        sigmas.append(per_sample / np.sqrt(max(mean_count or 1.0, 1.0)))
+    sigma = max(sigmas) if sigmas else float('nan')
+    cov = np.zeros((9, 9))
+    sub = F[np.ix_(idx, idx)]
+    scale = np.sqrt(np.maximum(np.diag(sub), 1e-300))
+    with np.errstate(all='ignore'):
+        if np.linalg.cond(sub / np.outer(scale, scale)) > 1e14:
+            cov[np.ix_(idx, idx)] = np.inf
+        else:
+            cov[np.ix_(idx, idx)] = sigma ** 2 * np.linalg.inv(sub)
+    return cov, float(sigma)
+
+
+def _add_held_terms(cal, y, gravity, weights):
+    """
+    Charge the 6-parameter (gn) fit for the cross-axis terms it holds at zero.
+
+    With 10 or more observations the 9-parameter ML fit measures those terms; their
+    mean-square error as estimates of zero (value² + variance) goes on the diagonal of
+    the covariance, so the predicted accuracy of a gn fit to a non-orthogonal sensor
+    says what the missing terms cost. With fewer observations nothing can check the
+    assumption (the CLI warns).
+    """
+    try:
+        fit = fit_ml(y, weights, gravity)
+    except (CalibrationError, np.linalg.LinAlgError, ValueError):
+        return
+    held = {1: (0, 1), 2: (0, 2), 4: (1, 2)}                # PARAMETER_NAMES index -> T[i, j]
+    if not np.all(np.isfinite(fit.covariance)):
+        return
+    for k, (i, j) in held.items():
+        cal.covariance[k, k] += fit.T[i, j] ** 2 + fit.covariance[k, k]
+
+
+def estimate_gyro_bias(gyro_means, weights=None):
+    """
+    Gyroscope bias (3,) rad/s: weighted mean of the static windows' mean rates.
+
+    :param gyro_means: (W, 3) window mean angular rates, rad/s (raw = true + bias).
+    :param weights: (W,) samples per window (default equal).
+    :returns: (3,) or None when there is no finite window.
+    """
+    g = np.asarray(gyro_means, float).reshape(-1, 3)
+    ok = np.all(np.isfinite(g), axis=1)
+    if not ok.any():
+        return None
+    w = np.ones(len(g)) if weights is None else np.asarray(weights, float).reshape(-1)
+    return np.average(g[ok], axis=0, weights=w[ok])
+
+
 def calibrate(readings, gravity=9.80665, method='ml', weights=None, temps=None,
-              thermal=False, band_width_c=10.0, noise_std=None, source=''):
+              thermal=False, band_width_c=10.0, noise_std=None, source='', gyro_means=None,
+              mean_count=None):
     """
     Fit a Calibration to static observations (window means or samples).
 
@@ -287,18 +201,27 @@ def calibrate(readings, gravity=9.80665, method='ml', weights=None, temps=None,
     :param temps: (N,) observation temperatures, °C, for the drift tables.
     :param thermal: fit temperature-band tables (needs ``temps``).
     :param noise_std: (3,) per-sample noise measured in the windows, m/s².
-    :returns: Calibration.
+    :param gyro_means: (N, 3) mean angular rate of each observation, rad/s: gives the
+        gyroscope bias (and per temperature band with ``thermal``).
+    :param mean_count: mean samples per observation behind ``noise_std``
+        (default: the mean weight, i.e. samples per window).
+    :returns: Calibration with ``predicted_accuracy`` (spec §5).
     :raises CalibrationError: the data cannot determine the model (with the reason).
     """
     if method not in METHODS:
         raise InputError(f'unknown method {method!r}; choose one of {", ".join(METHODS)}')
     y = np.asarray(readings, float).reshape(-1, 3)
+    if not np.all(np.isfinite(y)):
+        raise InputError('observations hold NaN or infinite values')
     check_geometry(y, method)
     T, bias, cov, info = _fit_reference(y, gravity, method, weights)
     cal = Calibration(T=T, bias=bias, gravity=gravity, method=method, covariance=cov,
                       observations=len(y), source=source,
                       noise_std=np.full(3, np.nan) if noise_std is None else noise_std,
                       **info)
+    if temps is not None and np.any(np.isfinite(temps)):
+        tf = np.asarray(temps, float)[np.isfinite(temps)]
+        cal.temperature_range_c = (float(tf.min()), float(tf.max()))
     if thermal:
         if temps is None or not np.any(np.isfinite(temps)):
             raise InputError('thermal tables need temperatures (a temp column) in the data')
@@ -316,12 +239,164 @@ def calibrate(readings, gravity=9.80665, method='ml', weights=None, temps=None,
                                                                 weights)
         cal.thermal = fit_thermal_table(y, temps, cal.T, cal.bias, gravity, weights,
                                         band_width_c)
+    clean = y if cal.thermal is None or temps is None else y - cal.thermal.drift(y, temps)
+    if mean_count is None:
+        mean_count = 1.0 if weights is None else float(np.mean(weights))
+    with np.errstate(all='ignore'):
+        cal.covariance, _ = parameter_covariance(clean, cal.T, cal.bias, gravity, method,
+                                                 weights, cal.noise_std, mean_count)
+        if method == 'gn':
+            _add_held_terms(cal, clean, gravity, weights)
+        cal.predicted_accuracy = predicted_accuracy(cal.T, cal.covariance, gravity)
+    if not np.isfinite(cal.predicted_accuracy):
+        cal.predicted_accuracy = float('inf')
+    if gyro_means is not None:
+        cal.gyro_bias = estimate_gyro_bias(gyro_means, weights)
+        if cal.thermal is not None:
+            index = np.floor(np.asarray(temps, float) / band_width_c)
+            for band in cal.thermal.bands:
+                sel = np.isfinite(temps) & (index == np.floor(band.low_c / band_width_c))
+                if sel.any():
+                    band.gyro_bias = estimate_gyro_bias(
+                        np.asarray(gyro_means, float)[sel],
+                        None if weights is None else np.asarray(weights, float)[sel])
     cal.residual_rms = float(np.sqrt(np.mean(gravity_residuals(cal, None, y, gravity,
                                                                temps) ** 2)))
     return cal
 
 
 def default_calibration_path():
-    """Where the nodes keep the calibration unless told otherwise."""
-    root = os.environ.get('ROS_HOME', os.path.join(os.path.expanduser('~'), '.ros'))
-    return os.path.join(root, 'accel_calib_ros', 'calibration.yaml')
+    """Where the nodes keep the calibration (moved to ``dataio.calibration_file``)."""
+    from ..dataio.calibration_file import default_calibration_path as path
+    return path()
+
+
+OUTLIER_FACTOR = 8.0
+"""A window is an outlier when its gravity-norm residual exceeds this many times its noise."""
+MAX_OUTLIER_FRACTION = 0.25
+"""Never drop more than this fraction of the windows (beyond it the session is refused)."""
+
+
+def _norm_residuals_fit(y, w, dt, gravity, start, iterations=30):
+    """
+    Weighted least-squares fit of |T⁻¹ (y - b - k dt)| = gravity; return the residuals.
+
+    T upper triangular, b the bias and k (3,) a linear temperature coefficient of the
+    bias (``dt`` °C from the mean, zeros without temperatures): a model general enough
+    for every window of a session that the outlier test can trust. Levenberg-Marquardt
+    with a finite-difference Jacobian (12 parameters).
+    """
+    rows, cols = np.triu_indices(3)
+
+    def residual(p):
+        T = np.zeros((3, 3))
+        T[rows, cols] = p[:6]
+        x = y - p[6:9] - np.outer(dt, p[9:12])
+        return np.linalg.norm(np.linalg.solve(T, x.T).T, axis=1) - gravity
+
+    p = np.r_[start[0][rows, cols], start[1], np.zeros(3)]
+    use = slice(None) if np.any(dt != 0) else slice(0, 9)
+    r = residual(p)
+    cost, damping = float(np.sum(w * r ** 2)), 1e-3
+    for _ in range(iterations):
+        h = 1e-6 * np.maximum(np.abs(p), 1e-3)
+        J = np.zeros((len(y), 12))
+        for k in range(12)[use]:
+            e = np.zeros(12)
+            e[k] = h[k]
+            J[:, k] = (residual(p + e) - residual(p - e)) / (2 * h[k])
+        J = J[:, use]
+        A = J.T @ (w[:, None] * J)
+        g = J.T @ (w * r)
+        try:
+            step = np.linalg.solve(A + damping * np.diag(np.diag(A) + 1e-300), -g)
+        except np.linalg.LinAlgError:
+            break
+        trial = p.copy()
+        trial[use] += step
+        with np.errstate(all='ignore'):
+            r_new = residual(trial)
+        cost_new = float(np.sum(w * r_new ** 2))
+        if np.isfinite(cost_new) and cost_new <= cost:
+            done = cost - cost_new <= 1e-12 * cost
+            p, r, cost, damping = trial, r_new, cost_new, damping / 10
+            if done:
+                break
+        else:
+            damping *= 10
+            if damping > 1e8:
+                break
+    return r
+
+
+def find_outlier_windows(readings, weights, counts, noise_std, gravity=9.80665, temps=None,
+                         thermal=False, band_width_c=10.0, method='ml', rounds=8):
+    """
+    Windows whose gravity-norm residual after a robust fit is far beyond their noise.
+
+    A slow turn leaking into a hold, a bump, or a hand still settling moves a window's
+    mean off the ellipsoid every other window lies on. The fit is made robust by
+    iteratively reweighting the windows with Tukey's biweight of their residuals (so an
+    outlier cannot pull the fit towards itself), then a window is an outlier when its
+    residual exceeds :data:`OUTLIER_FACTOR` times the larger of its own noise
+    (``noise_std`` / sqrt(count)) and 1.4826 x the median absolute residual (model errors
+    every window shares). The fit carries a linear temperature coefficient of the bias
+    when the temperatures spread (``thermal`` is accepted for symmetry with
+    :func:`calibrate`), so drift is not mistaken for motion. More than
+    :data:`MAX_OUTLIER_FRACTION` of the windows, or a
+    set the model cannot be fitted on without them, is never dropped (the fit then
+    judges the session).
+
+    :param readings: (W, 3) window means, m/s²; ``counts``: (W,) samples per window.
+    :returns: (keep mask (W,), list of (index, reason)).
+    """
+    y = np.asarray(readings, float).reshape(-1, 3)
+    n = len(y)
+    keep = np.ones(n, bool)
+    if n < 12:
+        return keep, []
+    counts = np.asarray(counts, float).reshape(n)
+    noise = float(np.sqrt(np.mean(np.square(noise_std)))) if noise_std is not None \
+        and np.all(np.isfinite(noise_std)) else 0.0
+    own = np.maximum(noise / np.sqrt(np.maximum(counts, 1.0)), 1e-7 * gravity)
+    w = np.ones(n) if weights is None else np.asarray(weights, float).reshape(n)
+    t = None if temps is None else np.asarray(temps, float).reshape(n)
+    robust_w = np.ones(n)
+    dt = np.zeros(n)
+    if t is not None and np.all(np.isfinite(t)) and np.ptp(t) > 1.0:
+        dt = t - np.average(t, weights=w)
+    try:
+        with np.errstate(all='ignore'):
+            start = _fit_reference(y, gravity, 'ml', w)[:2]
+    except (CalibrationError, np.linalg.LinAlgError):
+        return keep, []
+    r = scale = None
+    for _ in range(rounds):
+        with np.errstate(all='ignore'):
+            r_new = np.abs(_norm_residuals_fit(y, w * np.maximum(robust_w, 1e-6), dt, gravity,
+                                               start))
+        if not np.all(np.isfinite(r_new)):
+            break
+        r = r_new
+        trusted = robust_w > 0.5
+        spread = 1.4826 * np.median(r[trusted]) if trusted.any() else np.median(r)
+        scale = np.maximum(own, spread)
+        z = r / (4.685 * scale)
+        new_w = np.where(z < 1.0, (1.0 - z ** 2) ** 2, 0.0)
+        if np.allclose(new_w, robust_w, atol=1e-3):
+            break
+        robust_w = new_w
+    if r is None:
+        return keep, []
+    bad = r > OUTLIER_FACTOR * scale
+    if bad.sum() > MAX_OUTLIER_FRACTION * n:
+        return keep, []
+    if bad.any():
+        try:
+            check_geometry(y[~bad], method)
+        except CalibrationError:
+            return keep, []
+    reasons = [(int(k), f'gravity-norm residual {r[k]:.4f} m/s² is {r[k] / scale[k]:.0f}x '
+                        f'its noise {scale[k]:.2g} m/s² (moved during the hold?)')
+               for k in np.flatnonzero(bad)]
+    return ~bad, reasons

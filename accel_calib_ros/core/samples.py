@@ -7,6 +7,16 @@ import numpy as np
 
 from .errors import InputError
 
+MAX_ABS = {'time': 1e12, 'acceleration': 1e6, 'temperature': 1e3, 'gyro': 1e6}
+"""Largest magnitude believed per quantity (s, m/s² or raw counts, °C, rad/s)."""
+
+
+def _bad_rows(values, limit):
+    """Boolean (N,) rows holding a NaN, an infinity or a magnitude beyond ``limit``."""
+    with np.errstate(invalid='ignore'):
+        ok = np.isfinite(values) & (np.abs(values) <= limit)
+    return ~(ok if ok.ndim == 1 else ok.all(axis=1))
+
 
 @dataclass
 class Samples:
@@ -46,16 +56,20 @@ class Samples:
         """Raise InputError unless the samples are usable (finite, time-ordered, non-empty)."""
         if len(self) == 0:
             raise InputError('no samples: the recording is empty')
-        if not np.all(np.isfinite(self.t)):
-            raise InputError('time column holds NaN or infinite values')
-        bad = ~np.all(np.isfinite(self.accel), axis=1)
-        if bad.any():
-            first = int(np.argmax(bad))
-            raise InputError(
-                f'{int(bad.sum())} rows hold NaN or infinite acceleration '
-                f'(first at row {first}, t={self.t[first]:.3f} s); clean or drop them')
-        if self.temp is not None and not np.all(np.isfinite(self.temp)):
-            raise InputError('temperature column holds NaN or infinite values')
+        if _bad_rows(self.t, MAX_ABS['time']).any():
+            raise InputError(f'{int(_bad_rows(self.t, MAX_ABS["time"]).sum())} rows hold a '
+                             'NaN, infinite or implausible time')
+        for what, values in (('acceleration', self.accel), ('gyro', self.gyro),
+                             ('temperature', self.temp)):
+            if values is None:
+                continue
+            bad = _bad_rows(values, MAX_ABS[what])
+            if bad.any():
+                first = int(np.argmax(bad))
+                raise InputError(
+                    f'{int(bad.sum())} rows hold NaN, infinite or implausibly large '
+                    f'(beyond {MAX_ABS[what]:g}) {what} (first at row {first}, '
+                    f't={self.t[first]:.3f} s); clean or drop them')
         if np.any(np.diff(self.t) < 0):
             raise InputError('time column is not in increasing order')
         return self

@@ -46,6 +46,7 @@ class SensorModel:
     :param scale_tempco: (3,) scale drift, 1 per °C.
     :param bias_drift: (3,) offset change with time, m/s² per s.
     :param temp_ref: reference temperature of ``T`` and ``bias``, °C.
+    :param gyro_bias: (3,) gyroscope offset, rad/s (raw rate = true + gyro_bias).
     """
 
     T: np.ndarray = field(default_factory=lambda: np.eye(3))
@@ -57,6 +58,7 @@ class SensorModel:
     scale_tempco: np.ndarray = field(default_factory=lambda: np.zeros(3))
     bias_drift: np.ndarray = field(default_factory=lambda: np.zeros(3))
     temp_ref: float = 25.0
+    gyro_bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def __post_init__(self):
         self.T = np.asarray(self.T, dtype=float).reshape(3, 3)
@@ -123,6 +125,10 @@ def mpu9250_like(rng, rate_hz=100.0, effects=()):
         bias=np.array([0.06, 0.06, 0.08]) * G0 * rng.uniform(-1, 1, 3),
         noise_std=np.full(3, 300e-6 * G0 * np.sqrt(rate_hz / 2.0)),
         lsb=MPU9250_LSB)
+    # Gyro zero-rate offset up to ±3 °/s, drawn without consuming ``rng`` (seeded sessions
+    # keep their accelerometer draws).
+    model.gyro_bias = np.random.default_rng(
+        int(abs(model.bias[0]) * 1e12) % (2 ** 32)).uniform(-1, 1, 3) * np.radians(3.0)
     magnitudes = {
         'scale_nonlinearity': ('nonlinearity', signed(0.002, 0.005)),
         'temperature_bias': ('bias_tempco', signed(0.5e-3, 1.5e-3) * G0),
@@ -240,6 +246,7 @@ def simulate_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=10
     rotvec = (rot[1:] * rot[:-1].inv()).as_rotvec() / dt
     gyro_world = np.vstack([rotvec, rotvec[-1:]])
     gyro = rot.inv().apply(gyro_world) + rng.standard_normal((len(t), 3)) * 0.002
+    gyro = gyro + np.asarray(getattr(sensor, 'gyro_bias', np.zeros(3)), float)
 
     if callable(temperature):
         temp = np.asarray(temperature(t), float) * np.ones(len(t))

@@ -41,6 +41,7 @@ class ThermalBand:
     :param windows: static windows in the band.
     :param status: 'ok', or why the band is not used.
     :param residual_rms: gravity-norm residual of the band's windows after correction, m/s².
+    :param gyro_bias: (3,) gyroscope bias measured in the band's windows, rad/s, or None.
     """
 
     low_c: float
@@ -52,23 +53,32 @@ class ThermalBand:
     windows: int
     status: str = 'ok'
     residual_rms: float = float('nan')
+    gyro_bias: np.ndarray = None
 
     def to_dict(self):
-        """Plain YAML-ready mapping."""
-        return {'low_c': float(self.low_c), 'high_c': float(self.high_c),
-                'temp_c': float(self.temp_c), 'windows': int(self.windows),
-                'status': self.status, 'residual_rms_m_s2': float(self.residual_rms),
-                'quadratic_per_m_s2': [float(v) for v in self.quadratic],
-                'linear': [float(v) for v in self.linear],
-                'offset_m_s2': [float(v) for v in self.offset]}
+        """Plain YAML-ready mapping (unknown values as None)."""
+        d = {'low_c': float(self.low_c), 'high_c': float(self.high_c),
+             'temp_c': float(self.temp_c), 'windows': int(self.windows),
+             'status': self.status,
+             'residual_rms_m_s2': (float(self.residual_rms)
+                                   if np.isfinite(self.residual_rms) else None),
+             'quadratic_per_m_s2': [float(v) for v in self.quadratic],
+             'linear': [float(v) for v in self.linear],
+             'offset_m_s2': [float(v) for v in self.offset]}
+        if self.gyro_bias is not None:
+            d['gyro_bias_rad_s'] = [float(v) for v in self.gyro_bias]
+        return d
 
     @classmethod
     def from_dict(cls, d):
-        """Inverse of :meth:`to_dict`."""
+        """Inverse of :meth:`to_dict` (no validation: see dataio.calibration_file)."""
+        rms = d.get('residual_rms_m_s2')
+        gyro = d.get('gyro_bias_rad_s')
         return cls(float(d['low_c']), float(d['high_c']), float(d['temp_c']),
                    np.asarray(d['quadratic_per_m_s2'], float), np.asarray(d['linear'], float),
                    np.asarray(d['offset_m_s2'], float), int(d['windows']), str(d['status']),
-                   float(d.get('residual_rms_m_s2', float('nan'))))
+                   float('nan') if rms is None else float(rms),
+                   None if gyro is None else np.asarray(gyro, float).reshape(3))
 
 
 @dataclass
@@ -109,6 +119,26 @@ class ThermalTable:
         drift[~np.isfinite(temp)] = 0.0
         return drift
 
+    def gyro_bias(self, temp):
+        """
+        Gyroscope bias (N, 3) rad/s at temperatures ``temp`` (N,) °C, or None.
+
+        Linear between the temperatures of the bands that measured one, held constant
+        beyond them; NaN rows where the temperature is unknown. None when no band
+        carries a gyro bias.
+        """
+        temp = np.atleast_1d(np.asarray(temp, dtype=float))
+        bands = sorted((b for b in self.bands if b.gyro_bias is not None),
+                       key=lambda b: b.temp_c)
+        if not bands:
+            return None
+        nodes = np.array([b.temp_c for b in bands])
+        values = np.array([b.gyro_bias for b in bands])
+        out = np.column_stack([np.interp(np.nan_to_num(temp, nan=nodes[0]), nodes,
+                                         values[:, k]) for k in range(3)])
+        out[~np.isfinite(temp)] = np.nan
+        return out
+
     def to_dict(self):
         """Plain YAML-ready mapping."""
         return {'band_width_c': float(self.band_width_c),
@@ -140,6 +170,18 @@ def _basis(temps, nodes, low, high):
     frac = (t[above] - nodes[-1]) / (nodes[-1] - nodes[-2])
     phi[above, -1], phi[above, -2] = 1.0 + frac, -frac
     return phi
+
+
+def _distinct(vectors, min_angle_deg=15.0):
+    """Count the directions among ``vectors`` (N, 3) at least ``min_angle_deg`` apart."""
+    u = np.asarray(vectors, float).reshape(-1, 3)
+    u = u / np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
+    remaining = np.ones(len(u), bool)
+    count = 0
+    while remaining.any():
+        remaining &= u @ u[np.argmax(remaining)] < np.cos(np.radians(min_angle_deg))
+        count += 1
+    return count
 
 
 def _fit_nodes(z, w, phi, R, b, iterations=10):
@@ -216,7 +258,8 @@ def fit_thermal_table(readings, temps, T, bias, gravity, weights=None, band_widt
                                  zeros, zeros, zeros, int(sel.sum())))
     for band in bands:
         if band.windows < min_windows:
-            band.status = f'insufficient: {band.windows} windows, needs {min_windows}'
+            band.status = (f'too few windows: {band.windows} static windows in '
+                           f'{band.low_c:g}..{band.high_c:g} °C, needs {min_windows}')
     zf, wf, tf = z[finite], w[finite] / np.mean(w[finite]), temps[finite]
     while True:
         ok = [band for band in bands if band.status == 'ok']
@@ -232,6 +275,11 @@ def fit_thermal_table(readings, temps, T, bias, gravity, weights=None, band_widt
                 mine = (tf >= band.low_c) & (tf < band.high_c)
                 band.residual_rms = float(np.sqrt(np.mean(res[mine] ** 2))) * gravity
             break
-        ok[weak].status = 'insufficient: its orientations cannot separate the drift terms'
+        band = ok[weak]
+        mine = (tf >= band.low_c) & (tf < band.high_c)
+        dirs = _distinct(zf[mine])
+        band.status = (f'too few distinct directions: {dirs} among its {band.windows} windows '
+                       'cannot separate the drift terms (hold each axis up and down at this '
+                       'temperature)')
     table.bands = bands
     return table

@@ -7,17 +7,23 @@ times the recording's own noise floor. The floor is a low quantile of that movin
 standard deviation, so no threshold has to be tuned per sensor. A run of still
 samples longer than ``min_duration_s`` becomes a window after ``trim_s`` is cut
 from each end (the hand is still settling there).
+
+When the recording has an angular rate, the gyro joins the offline test: a still
+run is also required to turn slower than ``max_rotation_rad_s`` (moving mean of the
+bias-free rate over ``window_s``), so a slow turn that the accelerometer alone
+cannot see does not leak into a window. A run that rotates is cut to its longest
+non-rotating part, or dropped and reported in ``StaticWindows.dropped``.
 """
 
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from .errors import CalibrationError
 
 DEFAULTS = {'window_s': 0.5, 'min_duration_s': 0.5, 'threshold_factor': 3.0, 'trim_s': 0.2,
-            'floor_quantile': 0.02}
+            'floor_quantile': 0.02, 'max_rotation_rad_s': float(np.radians(2.0))}
 
 
 @dataclass
@@ -33,6 +39,8 @@ class StaticWindows:
     :param t_mid: (W,) mid time, s.
     :param temp: (W,) mean temperature, °C (NaN when not recorded).
     :param noise_floor: per-sample noise level the thresholds were set from, m/s².
+    :param gyro_mean: (W, 3) mean angular rate, rad/s, or None without gyro.
+    :param dropped: windows left out, one dict each (t_start, t_stop s, reason).
     """
 
     start: np.ndarray
@@ -43,6 +51,8 @@ class StaticWindows:
     t_mid: np.ndarray
     temp: np.ndarray
     noise_floor: float = float('nan')
+    gyro_mean: np.ndarray = None
+    dropped: list = field(default_factory=list)
 
     def __len__(self):
         return len(self.count)
@@ -57,7 +67,9 @@ class StaticWindows:
         """Windows picked by a boolean mask or index array."""
         return StaticWindows(self.start[index], self.stop[index], self.mean[index],
                              self.scatter[index], self.count[index], self.t_mid[index],
-                             self.temp[index], self.noise_floor)
+                             self.temp[index], self.noise_floor,
+                             None if self.gyro_mean is None else self.gyro_mean[index],
+                             list(self.dropped))
 
     def weights(self, max_weight_s=None, rate_hz=None):
         """
@@ -116,11 +128,35 @@ def still_mask(samples, window_s=DEFAULTS['window_s'],
     return mask, floor
 
 
+def _moving_mean(x, n):
+    """Centred moving mean over ``n`` samples, shape like ``x`` (N, k)."""
+    n = max(int(n), 1)
+    pad = np.pad(x, ((n // 2, n - n // 2 - 1), (0, 0)), mode='edge')
+    c = np.cumsum(np.vstack([np.zeros((1, x.shape[1])), pad]), axis=0)
+    return (c[n:] - c[:-n]) / n
+
+
+def rotation_rate(samples, accel_still, window_s=DEFAULTS['window_s']):
+    """
+    Bias-free rotation rate (N,) rad/s: |moving mean of gyro - gyro bias|, or None.
+
+    The gyro bias is the median rate over the accelerometer-still samples.
+    """
+    gyro = samples.gyro
+    if gyro is None or len(gyro) < 2 or not np.all(np.isfinite(gyro)):
+        return None
+    n = max(int(round(window_s * samples.rate_hz)), 3)
+    still = accel_still if np.any(accel_still) else np.ones(len(gyro), bool)
+    bias = np.median(gyro[still], axis=0)
+    return np.linalg.norm(_moving_mean(gyro - bias, n), axis=1)
+
+
 def detect_static_windows(samples, window_s=DEFAULTS['window_s'],
                           min_duration_s=DEFAULTS['min_duration_s'],
                           threshold_factor=DEFAULTS['threshold_factor'],
                           trim_s=DEFAULTS['trim_s'],
-                          floor_quantile=DEFAULTS['floor_quantile']):
+                          floor_quantile=DEFAULTS['floor_quantile'],
+                          max_rotation_rad_s=DEFAULTS['max_rotation_rad_s']):
     """
     Find the static windows of a recording.
 
@@ -130,7 +166,11 @@ def detect_static_windows(samples, window_s=DEFAULTS['window_s'],
     :param threshold_factor: still when the moving std < factor x noise floor.
     :param trim_s: cut from each end of a still run, s.
     :param floor_quantile: quantile of the moving std taken as the noise floor.
-    :returns: StaticWindows (possibly empty).
+    :param max_rotation_rad_s: with a gyro, still also means turning slower than
+        this (bias-free moving mean, rad/s) and than 5x the median rate of the
+        accelerometer-still samples; None or inf switches the gyro test off.
+    :returns: StaticWindows (possibly empty), with the runs the gyro rejected in
+        ``dropped``.
     """
     mask, floor = still_mask(samples, window_s, threshold_factor, floor_quantile)
     rate = samples.rate_hz
@@ -140,7 +180,42 @@ def detect_static_windows(samples, window_s=DEFAULTS['window_s'],
     starts, stops = starts + trim, stops - trim
     keep = stops - starts >= min_len
     starts, stops = starts[keep], stops[keep]
-    return windows_from_ranges(samples, starts, stops, floor)
+    dropped = []
+    spin = None
+    if max_rotation_rad_s is not None and np.isfinite(max_rotation_rad_s):
+        spin = rotation_rate(samples, mask, window_s)
+    if spin is not None:
+        # Turning clearly faster than the recording's own still level (its gyro noise and
+        # hand tremor, or a gyro logged in other units), and than the limit.
+        level = float(np.median(spin[mask])) if mask.any() else 0.0
+        limit = max(max_rotation_rad_s, 5.0 * level)
+        turning = spin > limit
+        new_starts, new_stops = [], []
+        for a, b in zip(starts, stops):
+            if not turning[a:b].any():
+                new_starts.append(a)
+                new_stops.append(b)
+                continue
+            sub_a, sub_b = _runs(~turning[a:b])
+            # Cut ``trim`` more where a part meets the rotation (not at the run's ends).
+            sub_a = np.where(sub_a > 0, sub_a + trim, sub_a) + a
+            sub_b = np.where(sub_b < b - a, sub_b - trim, sub_b) + a
+            lengths = sub_b - sub_a
+            if len(lengths) and lengths.max() >= min_len:
+                k = int(np.argmax(lengths))
+                new_starts.append(sub_a[k])
+                new_stops.append(sub_b[k])
+            else:
+                dropped.append({'t_start': float(samples.t[a]),
+                                't_stop': float(samples.t[b - 1]),
+                                'reason': f'rotating: gyro shows up to '
+                                          f'{np.degrees(spin[a:b].max()):.1f} °/s '
+                                          f'(limit {np.degrees(limit):.1f} °/s)'})
+        starts = np.asarray(new_starts, dtype=int)
+        stops = np.asarray(new_stops, dtype=int)
+    windows = windows_from_ranges(samples, starts, stops, floor)
+    windows.dropped = dropped
+    return windows
 
 
 def windows_from_ranges(samples, starts, stops, noise_floor=float('nan')):
@@ -159,7 +234,12 @@ def windows_from_ranges(samples, starts, stops, noise_floor=float('nan')):
     else:
         ct = np.r_[0.0, np.cumsum(samples.temp)]
         temp = (ct[stops] - ct[starts]) / np.maximum(count, 1)
-    return StaticWindows(starts, stops, mean, scatter, count, t_mid, temp, noise_floor)
+    gyro_mean = None
+    if samples.gyro is not None:
+        cg = np.vstack([np.zeros((1, 3)), np.cumsum(samples.gyro, axis=0)])
+        gyro_mean = (cg[stops] - cg[starts]) / np.maximum(count, 1)[:, None]
+    return StaticWindows(starts, stops, mean, scatter, count, t_mid, temp, noise_floor,
+                         gyro_mean)
 
 
 def distinct_directions(vectors, min_angle_deg=10.0, limit=None):

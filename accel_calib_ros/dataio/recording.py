@@ -63,6 +63,11 @@ _MAX_LISTED = 5
 _typestore = None
 
 
+PLAUSIBLE_LIMIT = {'time t': 1e12, 'acceleration ax, ay, az': 1e6, 'temperature': 1e3,
+                   'gyro gx, gy, gz': 1e6}
+"""Largest magnitude a CSV cell may hold per column group (s, m/s² or counts, °C, rad/s)."""
+
+
 def _rosbags():
     """
     Import rosbags on first use, so CSV work needs nothing beyond numpy.
@@ -350,11 +355,13 @@ def _load_csv(path):
     if gyro is not None:
         checks.append(('gyro gx, gy, gz', gyro))
     for what, values in checks:
-        finite = np.isfinite(values)
+        with np.errstate(invalid='ignore'):
+            finite = np.isfinite(values) & (np.abs(values) <= PLAUSIBLE_LIMIT[what])
         bad = np.nonzero(~(finite if finite.ndim == 1 else finite.all(axis=1)))[0]
         if bad.size:
             where = _list(line_numbers(bad[:_MAX_LISTED]) + ['x'] * (bad.size - _MAX_LISTED))
-            raise InputError(f'{path}: NaN or infinite {what} on {bad.size} row(s), line(s) '
+            raise InputError(f'{path}: NaN or infinite (or beyond {PLAUSIBLE_LIMIT[what]:g}) '
+                             f'{what} on {bad.size} row(s), line(s) '
                              f'{where}; clean or drop those rows')
     back = np.nonzero(np.diff(t) < 0)[0]
     if back.size:
