@@ -50,7 +50,7 @@ def check_geometry(readings, method):
     # Directions of the raw readings themselves: the bias is small next to gravity, and
     # centring on the data (as an ellipsoid fit would) turns the noise cloud of a single
     # pose into "many directions".
-    dirs = distinct_directions(readings, 15.0)
+    dirs = distinct_directions(readings, 15.0, limit=need_dirs)
     if dirs < need_dirs:
         missing = missing_faces(readings)
         raise CalibrationError(
