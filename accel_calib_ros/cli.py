@@ -124,6 +124,8 @@ def build_parser():
         p.set_defaults(run_device=device.run)
     except ImportError as err:      # pragma: no cover - only while device.py is missing
         p.set_defaults(run_device=None, device_error=str(err))
+    from . import guide
+    COMMANDS.update(guide.add_parsers(sub))
     return parser
 
 
