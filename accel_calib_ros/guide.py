@@ -678,7 +678,7 @@ def _same_file(a, b):
 def cmd_guide(args, out):
     """Run ``accel-calib guide``; return the exit status."""
     from . import cli
-    from .core.calibration import default_calibration_path
+    from .dataio.calibration_file import default_calibration_path
     output = args.output or default_calibration_path()
     if args.record and _same_file(args.record, output):
         raise cli.UsageError('accel-calib guide: --record and -o must be different files')
@@ -777,10 +777,15 @@ def _finish(session, output, label, console):
     except CalibrationError as err:
         console.print(f'cannot calibrate: {err}')
         return 1
-    cal_dir = os.path.dirname(os.path.abspath(output))
-    os.makedirs(cal_dir, exist_ok=True)
-    cal.save(output)
+    from .dataio.calibration_file import save_calibration
     adv = session.advice
+    if cal.predicted_accuracy is None:
+        cal.predicted_accuracy = adv.predicted_accuracy
+    temps = session.arrays()[2]
+    temps = temps[np.isfinite(temps)]
+    if cal.temperature_range_c is None and len(temps):
+        cal.temperature_range_c = (float(temps.min()), float(temps.max()))
+    save_calibration(cal, output)
     console.print(f'enough: predicted accuracy {adv.predicted_accuracy:.4f} m/s² ≤ target '
                   f'{adv.target:.4f} m/s² after {len(session.windows)} poses')
     console.print(f'wrote calibration {output}')

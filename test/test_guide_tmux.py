@@ -9,7 +9,7 @@ import sys
 import time
 import uuid
 
-from accel_calib_ros.core.calibration import Calibration
+from accel_calib_ros.dataio.calibration_file import load_calibration
 import numpy as np
 import pytest
 
@@ -83,7 +83,8 @@ def test_guide_walks_a_simulated_person_to_a_written_calibration(tmux, tmp_path)
     names = {line.split('next pose:')[1].split('(')[0].strip(' ─╮')
              for text in seen for line in text.splitlines() if 'next pose:' in line}
     assert len(names) >= 3
-    cal = Calibration.load(out)
+    cal = load_calibration(out)
+    assert 0 < cal.predicted_accuracy <= 0.01
     assert np.all(np.abs(np.diag(cal.T) - 1.0) < 0.05)
 
 
