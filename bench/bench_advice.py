@@ -15,12 +15,12 @@ Prints figures, asserts nothing.
 """
 
 import argparse
+from contextlib import redirect_stdout
 import io
 import json
 import math
 import os
 import tempfile
-from contextlib import redirect_stdout
 
 from accel_calib_ros.core.advice import advise, CANDIDATE_DIRECTIONS
 from accel_calib_ros.core.person import closed_loop, Person, tilt
@@ -75,8 +75,8 @@ def _plan_loop(sensor, rng, person, target):
 
 def describe(name, poses, true, predicted, met, seeds, target):
     finite = poses[np.isfinite(poses)]
-    hist = ', '.join(f'{int(v)}: {int(c)}' for v, c in zip(*np.unique(finite,
-                                                                     return_counts=True)))
+    values, counts = np.unique(finite, return_counts=True)
+    hist = ', '.join(f'{int(v)}: {int(c)}' for v, c in zip(values, counts))
     print(f'  {name:8s} poses median {np.median(poses):4.1f}  mean {np.mean(finite):5.2f}  '
           f'max {np.max(poses):4.0f}  never {int(np.sum(~np.isfinite(poses)))}/{seeds}   '
           f'predicted at stop median {np.median(predicted):.4f}  true median '
