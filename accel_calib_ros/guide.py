@@ -78,6 +78,11 @@ def add_parsers(sub):
     p.add_argument('--hold', type=cli._positive, default=2.0,
                    help='seconds to hold each pose still (default %(default)s)')
     p.add_argument('--record', help='also write the raw samples to this CSV')
+    p.add_argument('--history', nargs='?', const='', default=None, metavar='DB',
+                   help='keep the windows and the calibration in this per-sensor history '
+                        '(default next to the calibration file)')
+    p.add_argument('--sensor', help='sensor id in the history (default: the port, the topic '
+                                    'or "simulated-SEED")')
     p.add_argument('--timeout', type=cli._positive, default=None,
                    help='give up after this many wall-clock seconds')
     g = p.add_argument_group('serial port')
@@ -682,6 +687,14 @@ def cmd_guide(args, out):
     output = args.output or default_calibration_path()
     if args.record and _same_file(args.record, output):
         raise cli.UsageError('accel-calib guide: --record and -o must be different files')
+    history = None
+    if args.history is not None:
+        from .dataio.history import default_history_path
+        history = args.history or default_history_path()
+        if any(_same_file(history, f) for f in (output, args.record) if f):
+            raise cli.UsageError('accel-calib guide: the history must not be the output or '
+                                 'the record file')
+        args.sensor = args.sensor or args.port or args.topic or f'simulated-{args.seed}'
     try:
         from rich.console import Console
         from rich.live import Live
@@ -745,7 +758,7 @@ def cmd_guide(args, out):
                     live.update(render(session, source.label), refresh=True)
                     last_draw = now
         if session is not None and session.enough:
-            status = _finish(session, output, source.label, console)
+            status = _finish(session, output, source.label, console, history, args.sensor)
         else:
             console.print(message or 'stopped: nothing written')
     except KeyboardInterrupt:
@@ -770,8 +783,8 @@ def _rate(stamp_lists):
     return 1.0 / float(np.median(dt))
 
 
-def _finish(session, output, label, console):
-    """Fit and write the calibration; return the exit status."""
+def _finish(session, output, label, console, history=None, sensor=None):
+    """Fit and write the calibration (and the history); return the exit status."""
     try:
         cal = session.fit(source=f'accel-calib guide ({label})')
     except CalibrationError as err:
@@ -789,6 +802,16 @@ def _finish(session, output, label, console):
     console.print(f'enough: predicted accuracy {adv.predicted_accuracy:.4f} m/s² ≤ target '
                   f'{adv.target:.4f} m/s² after {len(session.windows)} poses')
     console.print(f'wrote calibration {output}')
+    if history:
+        from .dataio.history import History
+        means, weights, temps, _ = session.arrays()
+        t_mid = np.array([w['t_mid'] for w in session.windows])
+        now = time.time()
+        with History(history) as h:
+            h.add_windows(sensor, means, temps, weights, now - (t_mid.max() - t_mid))
+            h.add_calibration(sensor, cal, windows=len(means))
+        console.print(f'history {history}: {len(means)} windows and the calibration kept '
+                      f'for sensor {sensor}')
     return 0
 
 
