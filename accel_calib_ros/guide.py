@@ -538,10 +538,14 @@ class RosSource:
             from sensor_msgs.msg import Imu, Temperature
         except ImportError as err:
             raise InputError(f'ROS 2 (rclpy) is not available: {err}') from None
+        from rclpy.executors import SingleThreadedExecutor
         self.label = f'ROS topic {topic}'
         self.rclpy = rclpy
-        rclpy.init()
-        self.node = rclpy.create_node('accel_calib_guide')
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node('accel_calib_guide', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
         self.buffer = []
         self.temp = math.nan
         self.node.create_subscription(Imu, topic, self._on_imu, qos_profile_sensor_data)
@@ -563,7 +567,7 @@ class RosSource:
         """Spin briefly; return the samples (t, accel, temp) received."""
         deadline = time.monotonic() + 0.05
         while time.monotonic() < deadline:
-            self.rclpy.spin_once(self.node, timeout_sec=0.01)
+            self.executor.spin_once(timeout_sec=0.01)
         got, self.buffer = self.buffer, []
         got = [g for g in got if all(map(math.isfinite, g[1]))]
         return (np.array([g[0] for g in got]), np.array([g[1] for g in got]).reshape(-1, 3),
@@ -571,8 +575,9 @@ class RosSource:
 
     def close(self):
         """Leave the ROS graph."""
+        self.executor.shutdown()
         self.node.destroy_node()
-        self.rclpy.try_shutdown()
+        self.rclpy.try_shutdown(context=self.context)
 
 
 # -- the screen -------------------------------------------------------------------------------
@@ -789,6 +794,11 @@ def _finish(session, output, label, console, history=None, sensor=None):
         cal = session.fit(source=f'accel-calib guide ({label})')
     except CalibrationError as err:
         console.print(f'cannot calibrate: {err}')
+        return 1
+    problems = cal.physical_problems()
+    if problems:
+        console.print(f'cannot calibrate: not physical: {"; ".join(problems)} '
+                      '(are the readings in m/s²?); nothing written')
         return 1
     from .dataio.calibration_file import save_calibration
     adv = session.advice

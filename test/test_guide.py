@@ -1,6 +1,7 @@
 """The guide's pieces without a terminal: hold tracking, drawing, serial input, usage."""
 
 import os
+import time
 
 from accel_calib_ros.cli import main
 from accel_calib_ros.core.advice import CANDIDATE_POSES
@@ -80,3 +81,38 @@ def test_guide_bad_usage_is_one_line_and_exit_2(tmp_path, capsys, monkeypatch, a
     err = capsys.readouterr().err
     assert words in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / 'same.yaml').exists()
+
+
+def test_ros_source_receives_imu_and_temperature_from_topics():
+    rclpy = pytest.importorskip('rclpy')
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import Imu, Temperature
+    from accel_calib_ros.guide import RosSource
+    source = RosSource('guide_test/imu', 'guide_test/temperature')
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    node = rclpy.create_node('guide_test_publisher', context=ctx)
+    try:
+        imu_pub = node.create_publisher(Imu, 'guide_test/imu', qos_profile_sensor_data)
+        temp_pub = node.create_publisher(Temperature, 'guide_test/temperature',
+                                         qos_profile_sensor_data)
+        got = []
+        deadline = time.monotonic() + 20.0
+        k = 0
+        while len(got) < 20 and time.monotonic() < deadline:
+            temp_pub.publish(Temperature(temperature=31.5))
+            msg = Imu()
+            msg.header.stamp.sec, msg.header.stamp.nanosec = 100 + k // 100, (k % 100) * 10 ** 7
+            msg.linear_acceleration.x, msg.linear_acceleration.z = 0.5, 9.8
+            imu_pub.publish(msg)             # 20 Hz: real time, never a burst
+            k += 1
+            t, a, temp = source.read(None)
+            got.extend(zip(t, a, temp))
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+        source.close()
+    assert len(got) >= 20
+    t, a, temp = (np.array(v) for v in zip(*got))
+    np.testing.assert_allclose(a[-1], [0.5, 0.0, 9.8])
+    assert temp[-1] == 31.5 and np.all(np.diff(t) > 0)

@@ -162,6 +162,27 @@ def _accuracy(T, cov, gravity):
     return value if math.isfinite(value) else math.inf
 
 
+def _accuracy_after(T, info, rows, var, index, inflation, gravity):
+    """
+    Predicted accuracy after one more window along each candidate, (K,) m/s².
+
+    One window adds ``h hᵀ / var`` to the information; the new covariance follows from
+    the current one by the Sherman-Morrison formula, so all candidates cost one inverse.
+    """
+    from .accuracy import sphere_average_matrix
+    cov = _covariance(info, index)
+    if cov is None:
+        return np.full(len(rows), math.inf)
+    C = cov[np.ix_(index, index)]
+    M = sphere_average_matrix(T, gravity)[np.ix_(index, index)]
+    H = rows[:, index]
+    CH = H @ C
+    denom = var + np.einsum('ij,ij->i', H, CH)
+    reduction = np.einsum('ij,jk,ik->i', CH, M, CH) / denom
+    value = inflation * (float(np.sum(M * C)) - reduction)
+    return np.sqrt(np.maximum(value, 0.0))
+
+
 def _covariance(info, index):
     """Invert the information restricted to ``index``; embed in (9, 9); None if singular."""
     sub = info[np.ix_(index, index)]
@@ -415,13 +436,9 @@ def advise(means, weights, noise_std, gravity=G0, method='ml', target=DEFAULT_TA
             current = _accuracy(T, cov * inflation, gravity)
 
     cand_rows = fisher_rows(T, CANDIDATE_DIRECTIONS, gravity)
-    after = np.full(len(CANDIDATE_DIRECTIONS), math.inf)
     prior = (cand_rows.T @ cand_rows) * PRIOR_WEIGHT / typical_var
-    base = info if solved else info + prior
-    for k, h in enumerate(cand_rows):
-        cov = _covariance(base + np.outer(h, h) / typical_var, index)
-        if cov is not None:
-            after[k] = _accuracy(T, cov * inflation, gravity)
+    after = _accuracy_after(T, info if solved else info + prior, cand_rows, typical_var,
+                            index, inflation, gravity)
     if not solved:
         if n + 1 >= MIN_WINDOWS[method]:
             # The accuracy once this pose makes the model solvable (no prior), if it does.
