@@ -171,3 +171,28 @@ def test_closed_loop_advised_person_reaches_target_within_12_poses_random_needs_
         random.append(result.poses_to_enough or 41)
     print(f'poses to 0.01 m/s2: advised {advised}, random {random}')
     assert np.mean(random) > np.mean(advised)
+
+
+def test_advise_command_json_and_bad_input(tmp_path, capsys):
+    from accel_calib_ros.cli import main
+    data = tmp_path / 'partial.csv'
+    assert main(['simulate', '-o', str(data), '--poses', 'faces', '--seed', '2']) == 0
+    capsys.readouterr()
+    assert main(['advise', str(data), '--json']) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d['windows'] == 6 and d['predicted_accuracy'] is None and d['enough'] is False
+    assert d['target'] == 0.01
+    # The six faces are held: the next pose is a new direction that makes ml solvable.
+    nxt = np.array(d['next_pose']['gravity_direction'])
+    assert np.count_nonzero(np.abs(nxt) > 0.1) >= 2
+    assert main(['advise', str(data), '--json', '--method', 'gn', '--target', '0.05']) == 0
+    gn = json.loads(capsys.readouterr().out)
+    assert gn['predicted_accuracy'] is not None and gn['enough'] is False      # 0 dof
+    assert main(['advise', str(data)]) == 0
+    assert 'next pose:' in capsys.readouterr().out
+    for argv in (['advise', str(tmp_path / 'missing.csv')],
+                 ['advise', str(data), '--target', '0'],
+                 ['advise', str(data), '--method', 'ellipsoid']):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1
