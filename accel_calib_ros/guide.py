@@ -611,6 +611,8 @@ def render(session, source_label, message=''):
                                         style='green' if on else 'yellow'))
     state = {'moving': 'moving', 'settling': 'settling…', 'holding': 'hold still…',
              'captured': 'captured ✓ — turn to the next pose'}[st['state']]
+    if adv.enough:
+        state = 'captured ✓ — done'
     bar = Table.grid(padding=(0, 1))
     bar.add_row(ProgressBar(total=1.0, completed=st['progress'], width=30),
                 f'{st["progress"] * 100:3.0f} %  {state}')
@@ -637,7 +639,8 @@ def render(session, source_label, message=''):
                            title=title, title_align='left', border_style='cyan'))
     if message:
         parts.append(Text(message))
-    parts.append(Text('q: stop without writing', style='dim'))
+    if not adv.enough:
+        parts.append(Text('q: stop without writing', style='dim'))
     return Panel(Group(*parts), title=f'accel-calib guide — {source_label}',
                  title_align='left')
 
