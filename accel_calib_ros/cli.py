@@ -174,7 +174,7 @@ def cmd_fit(args, out):
     readings, weights, temps, noise, n_obs = _observations(samples, args)
     if getattr(args, 'history', None) is not None:      # per-sensor history: history_cli.py
         from .history_cli import history_observations
-        readings, weights, temps, n_obs = history_observations(args, samples)
+        readings, weights, temps, n_obs, _ = history_observations(args, samples)
     cal = calibrate(readings, gravity=args.gravity, method=args.method, weights=weights,
                     temps=temps, thermal=args.thermal, band_width_c=args.band_width,
                     noise_std=noise, source=os.path.basename(args.data))

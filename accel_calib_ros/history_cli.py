@@ -56,7 +56,8 @@ def history_observations(args, samples):
 
     :param args: parsed ``fit`` arguments (``history`` not None).
     :param samples: the loaded recording.
-    :return: (readings (N, 3), weights (N,), temps (N,), N) over every kept window.
+    :return: (readings (N, 3), weights (N,), temps (N,), N, gyro means (N, 3) rad/s with
+        NaN rows where a session had no gyro) over every kept window of the sensor.
     """
     import numpy as np
     from .core.windows import detect_static_windows
@@ -86,7 +87,7 @@ def history_observations(args, samples):
         kept = h.windows(args.sensor)
     print(f'accel-calib: history {path}: {len(windows)} windows from this recording, '
           f'{len(kept["mean"])} kept for sensor {args.sensor}', file=sys.stderr)
-    return kept['mean'], kept['weight'], kept['temp'], len(kept['mean'])
+    return kept['mean'], kept['weight'], kept['temp'], len(kept['mean']), kept['gyro_mean']
 
 
 def record_fit(args, cal, temps=None):
