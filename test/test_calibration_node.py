@@ -141,6 +141,7 @@ def test_refusal_leaves_the_file_untouched_and_reset_clears(tmp_path, procs, cli
     procs.node(CALIBRATION, {'calibration_file': str(path)})
     client.publish_session(accel, stamps, temps)
     client.wait(lambda: client.status.get('windows', 0) >= 2, 15.0, 'windows')
+    client.spin(1.0)        # let the node drain the last pose's samples before ~/calibrate
     response = client.call(client.calibrate)
     assert not response.success
     assert 'refused' in response.message and 'orientations' in response.message
