@@ -124,6 +124,8 @@ def build_parser():
     p.add_argument('-o', '--output', help='write the calibration YAML here (atomically)')
     p.add_argument('--json', action='store_true', help='print one JSON object')
     _add_window_args(p)
+    from .history_cli import add_fit_arguments
+    add_fit_arguments(p)
 
     p = sub.add_parser('apply', help='correct a recording with a calibration file')
     p.add_argument('calibration', help='calibration YAML from "accel-calib fit"')
@@ -169,6 +171,9 @@ def build_parser():
         p.set_defaults(run_device=device.run)
     except ImportError as err:      # pragma: no cover - only while device.py is missing
         p.set_defaults(run_device=None, device_error=str(err))
+    from . import guide, history_cli
+    COMMANDS.update(guide.add_parsers(sub))
+    COMMANDS.update(history_cli.add_parsers(sub))
     return parser
 
 
@@ -238,7 +243,7 @@ def _observations(samples, args):
     dropped.sort(key=lambda d: d['t_start'])
     return _Observations(readings=windows.mean, weights=weights[keep], temps=windows.temp,
                          noise=windows.noise_std, count=len(windows),
-                         gyro=windows.gyro_mean, dropped=dropped,
+                         gyro=windows.gyro_mean, dropped=dropped, t_mid=windows.t_mid,
                          mean_count=float(np.mean(windows.count)) if len(windows) else 1.0)
 
 
@@ -345,6 +350,9 @@ def cmd_fit(args, out):
     obs = None
     try:
         obs = _observations(samples, args)
+        if getattr(args, 'history', None) is not None:     # per-sensor history
+            from .history_cli import history_observations
+            obs = history_observations(args, samples, obs)
         cal = calibrate(obs.readings, gravity=args.gravity, method=args.method,
                         weights=obs.weights, temps=obs.temps, thermal=args.thermal,
                         band_width_c=args.band_width, noise_std=obs.noise,
@@ -383,6 +391,9 @@ def cmd_fit(args, out):
     if refusal is None and args.output:
         from .dataio.calibration_file import save_calibration
         save_calibration(cal, args.output)
+    if refusal is None and getattr(args, 'history', None) is not None:
+        from .history_cli import record_fit
+        record_fit(args, cal, obs.temps)
     summary = _fit_summary(cal, extra)
     if args.json:
         out(summary)
