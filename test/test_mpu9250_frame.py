@@ -25,7 +25,10 @@ def bitwise_crc8(data):
 
 
 def random_frames(n, rng, seq0=0, t0=4_294_000_000, period_us=5000):
-    counts = rng.integers(-32768, 32768, (n, 7)).tolist()
+    """Uniformly random axes (the hardest case for a plausibility check), 15..35 °C."""
+    counts = rng.integers(-32768, 32768, (n, 7))
+    counts[:, 3] = np.clip(1335 + np.cumsum(rng.integers(-20, 21, n)), -2000, 4700)
+    counts = counts.tolist()
     return [RawFrame((seq0 + k) & 0xFF, (t0 + k * period_us) & 0xFFFFFFFF, tuple(c))
             for k, c in enumerate(counts)]
 
@@ -59,7 +62,7 @@ def test_encode_layout():
 def test_round_trip_with_wraps():
     frames = random_frames(600, np.random.default_rng(1), seq0=200)
     parser = FrameParser()
-    assert parser.feed(encode_all(frames)) == frames
+    assert parser.feed(encode_all(frames)) + parser.flush() == frames
     assert (parser.frames, parser.crc_errors, parser.lost_frames, parser.bytes_skipped) == \
         (600, 0, 0, 0)
 
@@ -73,7 +76,7 @@ def test_garbage_between_frames():
         pieces.append(rng.integers(0, 256, int(rng.integers(0, 30)), dtype=np.uint8).tobytes())
         pieces.append(b'\xa5\x5a' + bytes(5))           # a false sync cut short
     parser = FrameParser()
-    out = parser.feed(b''.join(pieces))
+    out = parser.feed(b''.join(pieces)) + parser.flush()
     assert out == frames
     assert parser.lost_frames == 0
     assert parser.bytes_skipped > 0
@@ -84,13 +87,13 @@ def test_split_feeds_at_every_boundary():
     data = b'\x00\xa5' + encode_all(frames) + b'\x5a\x11'
     for cut in range(len(data) + 1):
         parser = FrameParser()
-        out = parser.feed(data[:cut]) + parser.feed(data[cut:])
+        out = parser.feed(data[:cut]) + parser.feed(data[cut:]) + parser.flush()
         assert out == frames, cut
     parser = FrameParser()
     out = []
     for k in range(len(data)):
         out += parser.feed(data[k:k + 1])
-    assert out == frames
+    assert out + parser.flush() == frames
     assert parser.crc_errors == 0
 
 
@@ -110,7 +113,7 @@ def test_corruption_loses_no_intact_frame():
     raw = data.tobytes()
     for k in range(0, len(raw), 997):              # odd chunk size: frames split too
         out += parser.feed(raw[k:k + 997])
-    got = set(out)
+    got = set(out + parser.flush())
     lost = [f for f in intact if f not in got]
     assert lost == []
     assert parser.crc_errors > 0
@@ -123,7 +126,7 @@ def test_sequence_gaps_counted_with_wrap():
     frames = random_frames(300, np.random.default_rng(5), seq0=250)
     keep = [f for k, f in enumerate(frames) if k not in (3, 4, 5, 100, 299 - 1)]
     parser = FrameParser()
-    assert len(parser.feed(encode_all(keep))) == len(keep)
+    assert len(parser.feed(encode_all(keep)) + parser.flush()) == len(keep)
     assert parser.lost_frames == 5
     parser.reset()                               # after a reconnect: no gap across it
     parser.feed(encode_frame(77, 0, (0,) * 7))
