@@ -2,12 +2,17 @@
 # Make sure the Debian packages for the firmware (and, with "hil", for the emulated board
 # of the hardware-in-the-loop tests) are installed; install them with apt-get when missing
 # and running as root. Exit 0 when everything is there, else print ONE line and exit 1.
-#   firmware/tools/ensure-toolchain.sh [fw|hil]
+#   firmware/tools/ensure-toolchain.sh [fw|hil|host]   (host: only the host C compiler)
 set -u
 what=${1:-fw}
 need=""
-command -v avr-gcc >/dev/null 2>&1 || need="$need gcc-avr binutils-avr"
-[ -f /usr/lib/avr/include/avr/io.h ] || need="$need avr-libc"
+if [ "$what" != host ]; then
+    command -v avr-gcc >/dev/null 2>&1 || need="$need gcc-avr binutils-avr"
+    [ -f /usr/lib/avr/include/avr/io.h ] || need="$need avr-libc"
+fi
+if [ "$what" = host ]; then
+    command -v cc >/dev/null 2>&1 || need="$need gcc libc6-dev"
+fi
 if [ "$what" = hil ]; then
     command -v cc >/dev/null 2>&1 || need="$need gcc libc6-dev"
     [ -f /usr/include/simavr/sim_avr.h ] || need="$need libsimavr-dev simavr"

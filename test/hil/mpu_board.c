@@ -25,12 +25,14 @@
  *
  * Usage: mpu_board --elf FW.elf [--link PATH | --uart-out FILE] [--seconds S]
  *        [--who 0x71 | --who none] [--seed N] [--samples FILE] [--log FILE] [--fast]
+ *        [--wait-open S]   (start the board only once the pty is opened, S s at most)
  * On exit (after S simulated seconds, or SIGINT/SIGTERM) one JSON line on stdout reports
  * what the firmware configured and how much it sent.
  */
 #define _GNU_SOURCE
 #include <errno.h>
 #include <fcntl.h>
+#include <poll.h>
 #include <signal.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -307,18 +309,24 @@ static uint64_t wall_ns(void)
     return (uint64_t)ts.tv_sec * 1000000000ull + (uint64_t)ts.tv_nsec;
 }
 
-static int open_pty(const char *link)
+static int open_pty(const char *link, int keep_slave)
 {
     int m = posix_openpt(O_RDWR | O_NOCTTY);
     struct termios t;
     if (m < 0 || grantpt(m) || unlockpt(m))
         return -1;
-    slave_keep = open(ptsname(m), O_RDWR | O_NOCTTY);  /* keeps the pty alive */
+    /* Open the slave once: keeping it open keeps the pty alive; closing it again makes
+     * the master report POLLHUP until the driver opens it (see --wait-open). */
+    slave_keep = open(ptsname(m), O_RDWR | O_NOCTTY);
     if (slave_keep < 0)
         return -1;
-    tcgetattr(slave_keep, &t);
+    if (!keep_slave) {
+        close(slave_keep);
+        slave_keep = -1;
+    }
+    tcgetattr(m, &t);
     cfmakeraw(&t);
-    tcsetattr(slave_keep, TCSANOW, &t);
+    tcsetattr(m, TCSANOW, &t);
     unlink(link);
     if (symlink(ptsname(m), link))
         return -1;
@@ -329,7 +337,7 @@ static int open_pty(const char *link)
 int main(int argc, char **argv)
 {
     const char *elf = NULL, *link = NULL, *uart_out = NULL, *samples = NULL, *log_path = NULL;
-    double seconds = 5.0;
+    double seconds = 5.0, wait_open = 0.0;
     int fast = 0, i, state = cpu_Running;
     elf_firmware_t fw;
     uint64_t t0, next_service, end_cycle;
@@ -348,6 +356,7 @@ int main(int argc, char **argv)
         else if (!strcmp(a, "--seed")) seed_state ^= strtoull(v, NULL, 0) * 0x9E3779B97F4A7C15ull;
         else if (!strcmp(a, "--samples")) samples = v;
         else if (!strcmp(a, "--log")) log_path = v;
+        else if (!strcmp(a, "--wait-open")) wait_open = atof(v);
         else { fprintf(stderr, "mpu_board: unknown option %s\n", a); return 2; }
     }
     if (!elf || (!link && !uart_out) || !(seconds > 0)) {
@@ -406,20 +415,30 @@ int main(int argc, char **argv)
     avr_raise_irq(int_pin, pin_level);
     avr_cycle_timer_register_usec(avr, 1000, sample_tick, NULL);
 
+    signal(SIGINT, on_signal);
+    signal(SIGTERM, on_signal);
+    signal(SIGPIPE, SIG_IGN);
     if (link) {
-        out_fd = in_fd = open_pty(link);
+        out_fd = in_fd = open_pty(link, !(wait_open > 0));
         if (out_fd < 0) { perror("mpu_board: pty"); return 2; }
+        if (wait_open > 0) {    /* power the board up when the driver opens the port */
+            uint64_t deadline = wall_ns() + (uint64_t)(wait_open * 1e9);
+            for (;;) {
+                struct pollfd pfd = {out_fd, POLLIN, 0};
+                poll(&pfd, 1, 0);
+                if (!(pfd.revents & POLLHUP) || wall_ns() > deadline || stop_requested)
+                    break;
+                usleep(2000);
+            }
+        }
     } else {
         out_fd = open(uart_out, O_WRONLY | O_CREAT | O_TRUNC, 0644);
         if (out_fd < 0) { perror(uart_out); return 2; }
     }
-    signal(SIGINT, on_signal);
-    signal(SIGTERM, on_signal);
-    signal(SIGPIPE, SIG_IGN);
 
     end_cycle = (avr_cycle_count_t)(seconds * F_CPU_HZ);
     next_service = F_CPU_HZ / 1000u;
-    t0 = wall_ns();
+    t0 = wall_ns();                     /* after --wait-open: simulated time starts now */
     while (!stop_requested && avr->cycle < end_cycle) {
         state = avr_run(avr);
         if (state == cpu_Done || state == cpu_Crashed)
