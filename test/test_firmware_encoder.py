@@ -38,7 +38,7 @@ def test_data_frames_byte_identical(encoder):
             zip(seqs.tolist(), t_us.tolist(), counts.tolist())]
     assert len(got) == n
     assert got == want
-    parser = FrameParser(spike_counts=None)     # the wrap frames 5..8 continue each other
+    parser = FrameParser()                      # the wrap frames 5..8 continue each other
     out = parser.feed(b''.join(got[5:9])) + parser.flush()
     assert [(f.seq, f.t_us) for f in out] == [(254, 2 ** 32 - 2000), (255, 2 ** 32 - 1000),
                                               (0, 0), (1, 1000)]

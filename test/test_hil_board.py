@@ -1,6 +1,8 @@
 """
-Hardware in the loop: the real firmware ELF on an emulated Uno (simavr) with an emulated
-MPU-9250 on its TWI bus, read by the real ``mpu9250_driver`` node over a pty.
+Hardware in the loop: the real firmware ELF on an emulated Uno (simavr).
+
+The emulated board has an emulated MPU-9250 on its TWI bus; the real ``mpu9250_driver``
+node reads its UART over a pty.
 
 The board (test/hil/mpu_board.c, GPL-3, built here, never installed) logs every sample
 it puts in the sensor's registers; the tests check that what reaches the ROS graph is
@@ -10,7 +12,6 @@ cannot be installed (offline machine).
 
 import json
 import math
-import os
 import statistics
 import subprocess
 import time

@@ -138,7 +138,7 @@ TEMP_PLAUSIBLE_C = (-45.0, 95.0)
 TEMP_STEP_C = 4.0
 """Largest plausible temperature change between two samples close in time, °C."""
 SPIKE_COUNTS = 2048
-"""A one-sample spike larger than this (counts) between agreeing neighbours is corruption."""
+"""Suggested spike threshold (counts) for signals band-limited by the sensor's DLPF."""
 MAX_GAP_S = 2.0
 """Longest gap (device seconds) bridged by the sequence check; longer needs re-locking."""
 
@@ -197,9 +197,10 @@ class FrameParser:
       temperature moved less than :data:`TEMP_STEP_C`;
     - after a resynchronisation (start, reconnect, device restart or a long gap) a
       frame is confirmed by a later candidate that continues it in the same way;
-    - it is not a one-sample spike (> :data:`SPIKE_COUNTS` on an axis) between two
-      adjacent neighbours that agree with each other on all six axes: the newest frame is therefore held until
-      the next one arrives (or :meth:`flush` is called).
+    - optionally (``spike_counts``, off by default because it assumes a band-limited
+      signal) it is not a one-sample spike larger than ``spike_counts`` on an axis
+      between two adjacent neighbours that agree with each other on all six axes; the
+      newest frame is then held until the next one arrives (or :meth:`flush` is called).
 
     The scan resumes one byte after a candidate that was not accepted, so a valid frame
     hidden behind a false sync is kept. Info frames (sync ``0xA5 0x49``, CRC and magic)
@@ -212,12 +213,13 @@ class FrameParser:
     ``info_frames``, ``bytes_in``.
 
     :param temp_range: (low, high) plausible temperature counts (default: any chip).
-    :param spike_counts: spike threshold in counts (None disables the spike check).
+    :param spike_counts: spike threshold in counts, e.g. :data:`SPIKE_COUNTS` (None: no
+        spike check and no hold-back).
     """
 
     PENDING = 6
 
-    def __init__(self, temp_range=None, spike_counts=SPIKE_COUNTS):
+    def __init__(self, temp_range=None, spike_counts=None):
         self._buf = bytearray()
         self.temp_range = temp_range or temp_counts_range()
         self.spike_counts = spike_counts
@@ -268,7 +270,7 @@ class FrameParser:
 
     def _gap(self, a, b, period):
         """
-        Samples from frame ``a`` to frame ``b`` (>= 1), or 0 when ``b`` does not continue ``a``.
+        Return the samples from frame ``a`` to ``b`` (>= 1); 0 when ``b`` does not continue ``a``.
 
         :param period: sample period in µs, or None (then only a short gap is accepted).
         """
@@ -300,7 +302,11 @@ class FrameParser:
             elif n <= 4:
                 self.period_us += 0.02 * (observed - self.period_us)
         self._ref = frame
+        self.rejected += len(self._pending)     # candidates that never continued the stream
         self._pending = []
+        if self.spike_counts is None:
+            self._release(frame, None, out)
+            return
         held = self._held
         self._held = frame
         if held is not None:
@@ -433,6 +439,7 @@ class FrameParser:
         self.frames += len(out)
         self.crc_errors += crc_errors
         return out
+
 
 class AsciiLineParser:
     """

@@ -36,8 +36,8 @@ import serial
 
 from .common import declare_parameters, Param, ParameterProblem, run
 from ..dataio.mpu9250_frame import (ACCEL_LSB_PER_G, AsciiLineParser, ClockMapper, Converter,
-                                    FRAME_SIZE, FrameParser, GYRO_LSB_PER_DPS, TEMP_FORMULAS,
-                                    temp_counts_range)
+                                    FRAME_SIZE, FrameParser, GYRO_LSB_PER_DPS,
+                                    temp_counts_range, TEMP_FORMULAS)
 
 NODE_NAME = 'mpu9250_driver'
 QUEUE_DEPTH = 100
@@ -300,8 +300,9 @@ class Mpu9250Driver(Node):
     def _maybe_request_info(self):
         """Ask the firmware for its info frame when none came soon after connecting."""
         if self.format != 'binary' or self.device_info is not None or \
-                self._serial is None or self._info_requests >= 3 or \
-                time.monotonic() - self._connected_at < INFO_WAIT_S * (1 + 2 * self._info_requests):
+                self._serial is None or self._info_requests >= 3:
+            return
+        if time.monotonic() - self._connected_at < INFO_WAIT_S * (1 + 2 * self._info_requests):
             return
         self._info_requests += 1
         try:
