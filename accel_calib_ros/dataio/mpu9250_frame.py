@@ -119,7 +119,7 @@ class InfoFrame(NamedTuple):
 
     @property
     def status_text(self):
-        """The status in words."""
+        """Return the status in words."""
         return INFO_STATUS.get(self.status, f'status {self.status}')
 
 
