@@ -57,9 +57,10 @@ def read_log(path):
     return rows
 
 
-def test_firmware_on_emulated_board(board, tmp_path):
+@pytest.mark.parametrize('quirks', [[], ['--raw-twi']], ids=['repaired-twi', 'simavr-1.6-twi'])
+def test_firmware_on_emulated_board(board, tmp_path, quirks):
     """Register configuration, bus speeds, info frame, and every sample sent exactly."""
-    report, data, log = run_board(board, board['elf'], tmp_path, '--seconds', 3)
+    report, data, log = run_board(board, board['elf'], tmp_path, '--seconds', 3, *quirks)
     assert report['state'] == 'running'                      # not crashed
     assert report['scl_hz'] == pytest.approx(400e3)          # 400 kHz SCL configured
     assert report['baud'] == pytest.approx(1e6) and report['u2x'] == 1

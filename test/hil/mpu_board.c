@@ -26,6 +26,7 @@
  * Usage: mpu_board --elf FW.elf [--link PATH | --uart-out FILE] [--seconds S]
  *        [--who 0x71 | --who none] [--seed N] [--samples FILE] [--log FILE] [--fast]
  *        [--wait-open S]   (start the board only once the pty is opened, S s at most)
+ *        [--raw-twi]       (keep simavr 1.6's TWI quirks, to check the firmware copes)
  * On exit (after S simulated seconds, or SIGINT/SIGTERM) one JSON line on stdout reports
  * what the firmware configured and how much it sent.
  */
@@ -61,6 +62,7 @@
 #define TWINT_BIT 0x80
 
 static avr_t *avr;
+static int raw_twi;               /* --raw-twi: keep simavr 1.6's TWI quirks */
 static volatile sig_atomic_t stop_requested;
 
 /* ---- sensor model -------------------------------------------------------------- */
@@ -234,6 +236,8 @@ static void twi_hook(avr_irq_t *irq, uint32_t value, void *param)
 static void twi_status_hook(avr_irq_t *irq, uint32_t value, void *param)
 {
     (void)irq; (void)param;
+    if (raw_twi)
+        return;
     if (addr_phase_write && (value == 0x28 || value == 0x30)) {
         avr->data[A_TWSR] = (uint8_t)((avr->data[A_TWSR] & 0x07) | (value == 0x28 ? 0x18 : 0x20));
         addr_phase_write = 0;
@@ -244,7 +248,7 @@ static void twi_status_hook(avr_irq_t *irq, uint32_t value, void *param)
 static void twcr_write_hook(avr_t *a, avr_io_addr_t addr, uint8_t v, void *param)
 {
     (void)param;
-    if (v & TWINT_BIT)
+    if (!raw_twi && (v & TWINT_BIT))
         a->data[addr] &= (uint8_t)~TWINT_BIT;
 }
 
@@ -346,6 +350,7 @@ int main(int argc, char **argv)
         const char *a = argv[i];
         const char *v = (i + 1 < argc) ? argv[i + 1] : NULL;
         if (!strcmp(a, "--fast")) { fast = 1; continue; }
+        if (!strcmp(a, "--raw-twi")) { raw_twi = 1; continue; }
         if (!v) { fprintf(stderr, "mpu_board: %s needs a value\n", a); return 2; }
         ++i;
         if (!strcmp(a, "--elf")) elf = v;
