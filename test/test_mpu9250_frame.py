@@ -312,3 +312,28 @@ def test_mpu6050_temperature_formula():
     assert conv.to_counts((0, 0, 0), 36.53, (0, 0, 0))[3] == 0
     with pytest.raises(ValueError):
         Converter(temp_formula='bmi160')
+
+
+def test_badly_damaged_link_publishes_no_garbage():
+    """At 20 % byte corruption CRC-8 collisions abound: only sandwiched frames go out."""
+    rng = np.random.default_rng(12)
+    frames = random_frames(60000, rng, period_us=1000)
+    clean = np.frombuffer(encode_all(frames), np.uint8)
+    hit = np.flatnonzero(rng.random(len(clean)) < 0.2)
+    data = clean.copy()
+    data[hit] ^= rng.integers(1, 256, len(hit)).astype(np.uint8)
+    parser = FrameParser()
+    raw = data.tobytes()
+    out = []
+    for k in range(0, len(raw), 4096):
+        out += parser.feed(raw[k:k + 4096])
+    out += parser.flush()
+    assert parser.strict and parser.quality < 0.1
+    sent = set(frames)
+    assert all(f in sent for f in out)
+    lenient = FrameParser(strict_below=None)        # without: collisions get through
+    bad = [f for f in lenient.feed(raw) + lenient.flush() if f not in sent]
+    assert len(bad) > 5
+    clean_parser = FrameParser()
+    clean_parser.feed(encode_all(frames[:2000]))
+    assert not clean_parser.strict and clean_parser.quality > 0.9

@@ -408,6 +408,10 @@ class Mpu9250Driver(Node):
         elif self.device_info is not None and self.device_info.status != 0:
             status.level = DiagnosticStatus.ERROR
             status.message = f'firmware: {self.device_info.status_text}'
+        elif isinstance(self.parser, FrameParser) and self.parser.strict:
+            status.level = DiagnosticStatus.ERROR
+            status.message = (f'link badly corrupted (quality {self.parser.quality:.2f}): only '
+                              'frames confirmed by both neighbours are published')
         elif new_errors or new_lost:
             status.level = DiagnosticStatus.WARN
             status.message = f'{new_errors} CRC errors, {new_lost} lost frames in the last period'
@@ -425,6 +429,8 @@ class Mpu9250Driver(Node):
                   'accel_range_g': self.accel_range_g, 'gyro_range_dps': self.gyro_range_dps,
                   'temperature_formula': self.converter.temp_formula}
         parser = self.parser
+        if isinstance(parser, FrameParser):
+            values['link_quality'] = f'{parser.quality:.3f}'
         if isinstance(parser, FrameParser) and parser.period_us:
             values['device_rate_hz'] = f'{1e6 / parser.period_us:.1f}'
         info = self.device_info
