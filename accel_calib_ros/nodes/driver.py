@@ -349,9 +349,13 @@ class Mpu9250Driver(Node):
             imu.linear_acceleration.y = ay
             imu.linear_acceleration.z = az
             imu.linear_acceleration_covariance = self.accel_cov
+            # Decimate by the device clock when there is one (bursts share host stamps).
+            clock = stamp_s if frame.t_us is None else frame.t_us * 1e-6
             last = self._last_temp_stamp
-            send_temp = temp_period <= 0.0 or last is None or stamp_s < last or \
-                stamp_s - last >= temp_period * 0.999
+            elapsed = None if last is None else (clock - last) % 4294.967296 \
+                if frame.t_us is not None else clock - last
+            send_temp = temp_period <= 0.0 or elapsed is None or elapsed < 0 or \
+                elapsed >= temp_period * 0.999
             try:
                 self.imu_pub.publish(imu)
                 if send_temp:
@@ -361,7 +365,7 @@ class Mpu9250Driver(Node):
                     msg.temperature = temp
                     msg.variance = 0.0
                     self.temp_pub.publish(msg)
-                    self._last_temp_stamp = stamp_s
+                    self._last_temp_stamp = clock
             except Exception:           # noqa: B902 - context shut down under us: stop
                 self._stop.set()
                 return
@@ -402,12 +406,12 @@ class Mpu9250Driver(Node):
         if not self.connected:
             status.level = DiagnosticStatus.ERROR
             status.message = f'not connected: {self._last_error}'
-        elif rate <= 0:
-            status.level = DiagnosticStatus.WARN
-            status.message = 'connected, no frames'
         elif self.device_info is not None and self.device_info.status != 0:
             status.level = DiagnosticStatus.ERROR
             status.message = f'firmware: {self.device_info.status_text}'
+        elif rate <= 0:
+            status.level = DiagnosticStatus.WARN
+            status.message = 'connected, no frames'
         elif isinstance(self.parser, FrameParser) and self.parser.strict:
             status.level = DiagnosticStatus.ERROR
             status.message = (f'link badly corrupted (quality {self.parser.quality:.2f}): only '
