@@ -179,12 +179,13 @@ def test_driver_reads_the_board_at_1khz(board, tmp_path):
     stamps = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in imu]
     assert statistics.median(b - a for a, b in zip(stamps, stamps[1:])) == \
         pytest.approx(1e-3, rel=0.01)                        # 1 kHz by the device clock
-    by_stamp = {s: k for k, s in enumerate(stamps)}
+    by_stamp = {(m.header.stamp.sec, m.header.stamp.nanosec): k for k, m in enumerate(imu)}
+    assert len(by_stamp) == len(imu)                         # stamps are unique
     temps = msgs[TEMP]
     assert len(temps) >= 50                                  # 10 Hz
     for t in temps:
-        k = by_stamp[t.header.stamp.sec + t.header.stamp.nanosec * 1e-9]
-        assert t.temperature == conv.to_si(log[first + k][2])[1]
+        k = by_stamp[(t.header.stamp.sec, t.header.stamp.nanosec)]
+        assert t.temperature == conv.to_si(log[first + k][2])[1], k
     assert status is not None
     assert int(status['crc_errors']) == 0 and int(status['lost_frames']) == 0
     assert int(status['rejected']) == 0

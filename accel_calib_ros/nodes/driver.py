@@ -116,6 +116,7 @@ class Mpu9250Driver(Node):
             if self.format == 'binary' else AsciiLineParser()
         self.clock_mapper = ClockMapper()
         self._reopen = threading.Event()
+        self._prev_stamp = None
         self._baud_warned = False
         self._info_requests = 0
         self._connected_at = None
@@ -267,6 +268,7 @@ class Mpu9250Driver(Node):
                     continue
                 self.parser.reset()
                 self.clock_mapper.reset()
+                self._prev_stamp = None
                 self._connected_at = time.monotonic()
                 self._info_requests = 0
                 self.connected = True
@@ -376,8 +378,22 @@ class Mpu9250Driver(Node):
             return [host_s] * len(frames)
         if self.timestamp == 'device':
             mapper = self.clock_mapper
-            return [mapper.update(f.t_us, host_s) if f.t_us is not None else host_s
-                    for f in frames]
+            out = []
+            prev = self._prev_stamp
+            for f in frames:
+                if f.t_us is None:
+                    stamp = host_s
+                    prev = None
+                else:
+                    stamp = mapper.update(f.t_us, host_s)
+                    if prev is not None and stamp <= prev + 1e-6:
+                        # A start-up burst maps many samples onto one receive time (the
+                        # mapping is causal): keep the stamps strictly increasing.
+                        stamp = prev + 1e-6
+                    prev = stamp
+                out.append(stamp)
+            self._prev_stamp = prev
+            return out
         last = frames[-1].t_us
         return [host_s - (((last - f.t_us) & 0xFFFFFFFF) * 1e-6 if f.t_us is not None else 0.0)
                 for f in frames]
