@@ -19,9 +19,9 @@ static volatile uint8_t rx_request;
 void uart_init(uint32_t baud)
 {
     uint16_t ubrr = (uint16_t)((F_CPU + 4UL * baud) / (8UL * baud) - 1UL);
+    UCSR0A = _BV(U2X0);     /* before UBRR: emulators (simavr) take the rate at UBRR write */
     UBRR0H = (uint8_t)(ubrr >> 8);
     UBRR0L = (uint8_t)ubrr;
-    UCSR0A = _BV(U2X0);
     UCSR0C = _BV(UCSZ01) | _BV(UCSZ00);           /* 8 data bits, no parity, 1 stop */
     UCSR0B = _BV(TXEN0) | _BV(RXEN0) | _BV(RXCIE0);
 }
