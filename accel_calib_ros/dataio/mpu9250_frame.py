@@ -258,6 +258,7 @@ class FrameParser:
         self._consumed += len(self._buf)
         self._buf.clear()
         self._ref = None
+        self._older = []
         self._pending = []
         self._held = None
         self._last_out = None
@@ -319,11 +320,12 @@ class FrameParser:
         if self._ref is not None and n:
             dt = (frame.t_us - self._ref.t_us) & 0xFFFFFFFF
             observed = dt / n
-            if self.period_us is None or n == 1 and abs(observed - self.period_us) > \
-                    0.01 * self.period_us:
+            if self.period_us is None:
                 self.period_us = observed
-            elif n <= 4:
-                self.period_us += 0.02 * (observed - self.period_us)
+            elif n <= 4 and abs(observed - self.period_us) < 0.005 * self.period_us:
+                self.period_us += 0.02 * (observed - self.period_us)   # outliers ignored
+        if self._ref is not None:
+            self._older = (self._older + [self._ref])[-2:]
         self._ref = frame
         self.rejected += len(self._pending)     # candidates that never continued the stream
         self._pending = []
@@ -442,6 +444,15 @@ class FrameParser:
                 continue
             ref = self._ref
             gap = self._gap(ref, frame, self.period_us) if ref is not None else 0
+            if not gap and ref is not None:
+                # The newest reference may itself be a CRC-8 collision whose t_us was hit
+                # within tolerance: a frame that continues an older reference is good.
+                for older in reversed(self._older):
+                    gap = self._gap(older, frame, self.period_us)
+                    if gap and (frame.t_us - ref.t_us) & 0x80000000 == 0:
+                        self._ref = older
+                        break
+                    gap = 0
             if gap:
                 self._accept(frame, gap, out, base + i)
                 pos = end
@@ -452,11 +463,17 @@ class FrameParser:
                     confirmed = cand
                     break
             if confirmed is not None:            # re-lock on two frames that agree
-                self.rejected += len(self._pending) - 1
+                chain = [confirmed]              # with the earlier ones that lead up to it
+                for cand in reversed(self._pending[:self._pending.index(confirmed)]):
+                    if self._gap(cand, chain[0], None):
+                        chain.insert(0, cand)
+                self.rejected += len(self._pending) - len(chain)
                 self._pending = []
                 self._ref = None
+                self._older = []
                 self.period_us = None
-                self._accept(confirmed, 0, out, -1)
+                for k, cand in enumerate(chain):
+                    self._accept(cand, self._gap(chain[k - 1], cand, None) if k else 0, out, -1)
                 self._accept(frame, self._gap(confirmed, frame, None), out, base + i)
                 pos = end
                 continue
