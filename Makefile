@@ -7,7 +7,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
-.PHONY: setup demo test lint bench clean
+.PHONY: setup demo demo-board test lint bench clean firmware
 
 setup: $(STAMP)
 
@@ -20,6 +20,16 @@ $(STAMP): setup.py requirements.txt requirements-ros.txt requirements-dev.txt
 
 demo: $(STAMP)
 	$(BIN)/python -m accel_calib_ros.demo
+
+# Firmware for the Arduino Uno (apt packages installed when missing; see docs/firmware.md).
+firmware:
+	@sh firmware/tools/ensure-toolchain.sh fw
+	$(MAKE) -C firmware
+
+# The demo on the emulated board: firmware ELF on simavr + emulated MPU-9250 -> driver.
+demo-board: $(STAMP) firmware
+	@sh firmware/tools/ensure-toolchain.sh hil
+	$(BIN)/python -m accel_calib_ros.demo --board
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q test

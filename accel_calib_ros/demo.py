@@ -13,6 +13,15 @@ calibration node has collected the first ``--poses`` windows, the demo calls
 ``~/calibrate``; the remaining poses were never seen by the calibration, and the
 demo compares raw and corrected acceleration there with the truth (the simulated
 sensor's own parameters), before and after.
+
+With ``--board`` (``make demo-board``) the frames come from the real firmware instead:
+its ELF runs on an emulated Arduino Uno (simavr) with an emulated MPU-9250 whose
+registers replay the same kind of simulated session at 1 kHz, over a pty at 1 MBd:
+
+    emulated MPU-9250 -> firmware on emulated Uno (pty) -> mpu9250_driver -> ...
+
+This needs a source checkout (the board is a GPL-3 test program under test/hil/, never
+installed) and the Debian packages of docs/firmware.md (installed when missing, as root).
 """
 
 import argparse
@@ -129,6 +138,45 @@ class _Client:
         self.rclpy.try_shutdown(context=self.context)
 
 
+def _board_source(args, work, env, truth_path):
+    """
+    Build firmware and board, write the session's register values; return the board command.
+
+    :raises RuntimeError: not a source checkout, or the toolchain is missing (one line).
+    """
+    from .device import _write_truth, add_arguments, VirtualSensor
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    harness_src = os.path.join(root, 'test', 'hil', 'mpu_board.c')
+    firmware = os.path.join(root, 'firmware')
+    if not os.path.exists(harness_src) or not os.path.exists(os.path.join(firmware, 'Makefile')):
+        raise RuntimeError('--board needs a source checkout (firmware/ and test/hil/)')
+    for cmd, what in ((['sh', os.path.join(firmware, 'tools', 'ensure-toolchain.sh'), 'hil'],
+                       'toolchain'), (['make', '-s', '-C', firmware], 'make firmware')):
+        run = subprocess.run(cmd, capture_output=True, text=True)
+        if run.returncode:
+            lines = (run.stderr or run.stdout).strip().splitlines()
+            raise RuntimeError(f'{what}: {lines[-1] if lines else "failed"}')
+    board = os.path.join(work, 'mpu_board')
+    flags = subprocess.run(['pkg-config', '--cflags', '--libs', 'simavr'], capture_output=True,
+                           text=True).stdout.split() or ['-lsimavr']
+    run = subprocess.run(['cc', '-O2', '-o', board, harness_src] + flags + ['-lelf'],
+                         capture_output=True, text=True)
+    if run.returncode:
+        raise RuntimeError('cannot compile the emulated board: ' + run.stderr.strip()[-300:])
+    total = args.poses + args.fresh
+    dev = add_arguments(argparse.ArgumentParser()).parse_args(
+        ['--poses', 'random', '--count', str(total), '--hold', str(args.hold), '--move',
+         str(args.move), '--rate', '1000', '--seed', str(args.seed)])
+    sensor = VirtualSensor(dev)
+    _write_truth(truth_path, sensor.truth())
+    n = int(total * (args.hold + args.move) * 1000) + 120_000     # script, then 2 min held
+    samples = os.path.join(work, 'registers.bin')
+    sensor.counts(n, 0.0).astype('<i2').tofile(samples)
+    return [board, '--elf', os.path.join(firmware, 'build', 'accel_calib_fw.elf'),
+            '--link', os.path.join(work, 'imu0'), '--samples', samples, '--seconds', '3600',
+            '--wait-open', '120']
+
+
 def run_ros_demo(args):
     """Run the three nodes on the simulated sensor; return the exit status."""
     env = _env()
@@ -142,11 +190,22 @@ def run_ros_demo(args):
     procs = []
     client = None
     try:
-        procs.append(_start(['accel_calib_ros.device', '--link', link, '--poses', 'random',
-                             '--count', str(total), '--hold', str(args.hold), '--move',
-                             str(args.move), '--rate', str(args.rate), '--seed',
-                             str(args.seed), '--truth-out', truth_path, '--corrupt',
-                             str(args.corrupt)], os.path.join(work, 'device.log'), env))
+        if args.board:
+            try:
+                cmd = _board_source(args, work, env, truth_path)
+            except RuntimeError as err:
+                print(f'demo --board: {err}', file=sys.stderr)
+                return 2
+            print('firmware ELF on an emulated Uno + emulated MPU-9250 (simavr), 1 kHz, 1 MBd')
+            log = open(os.path.join(work, 'board.log'), 'w')
+            procs.append(subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env,
+                                          start_new_session=True))
+        else:
+            procs.append(_start(['accel_calib_ros.device', '--link', link, '--poses', 'random',
+                                 '--count', str(total), '--hold', str(args.hold), '--move',
+                                 str(args.move), '--rate', str(args.rate), '--seed',
+                                 str(args.seed), '--truth-out', truth_path, '--corrupt',
+                                 str(args.corrupt)], os.path.join(work, 'device.log'), env))
         if not _wait_for(link, 20) or not _wait_for(truth_path, 20):
             print('demo: the simulated device did not start; see device.log', file=sys.stderr)
             return 1
@@ -250,6 +309,9 @@ def main(argv=None):
     parser.add_argument('--seed', type=int, default=7)
     parser.add_argument('--workdir', help='keep logs and files here')
     parser.add_argument('--offline', action='store_true', help='no ROS: core only')
+    parser.add_argument('--board', action='store_true',
+                        help='frames from the real firmware on an emulated Uno + MPU-9250 '
+                             '(simavr; source checkout, see docs/firmware.md)')
     args = parser.parse_args(argv)
     if not args.offline:
         try:

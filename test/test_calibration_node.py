@@ -354,5 +354,5 @@ def test_config_files_match_the_declared_parameters():
     with open(os.path.join(root, 'config', 'driver.yaml'), encoding='utf-8') as f:
         driver = yaml.safe_load(f)['mpu9250_driver']['ros__parameters']
     for key in driver:
-        assert re.search(rf"declare\(\s*self,\s*'{key}'", source), \
+        assert re.search(rf"(declare\(\s*self,\s*|Param\(\s*)'{key}'", source), \
             f'driver.yaml: {key} is not a driver parameter'

@@ -6,7 +6,7 @@ import struct
 from accel_calib_ros.dataio.mpu9250_frame import (accel_scale, AsciiLineParser, ClockMapper,
                                                   Converter, crc8, encode_ascii_line,
                                                   encode_frame, FRAME_SIZE, FrameParser,
-                                                  gyro_scale, RawFrame, temp_c)
+                                                  gyro_scale, RawFrame, SPIKE_COUNTS, temp_c)
 import numpy as np
 import pytest
 
@@ -25,7 +25,10 @@ def bitwise_crc8(data):
 
 
 def random_frames(n, rng, seq0=0, t0=4_294_000_000, period_us=5000):
-    counts = rng.integers(-32768, 32768, (n, 7)).tolist()
+    """Uniformly random axes (the hardest case for a plausibility check), 15..35 °C."""
+    counts = rng.integers(-32768, 32768, (n, 7))
+    counts[:, 3] = np.clip(1335 + np.cumsum(rng.integers(-20, 21, n)), -2000, 4700)
+    counts = counts.tolist()
     return [RawFrame((seq0 + k) & 0xFF, (t0 + k * period_us) & 0xFFFFFFFF, tuple(c))
             for k, c in enumerate(counts)]
 
@@ -59,7 +62,7 @@ def test_encode_layout():
 def test_round_trip_with_wraps():
     frames = random_frames(600, np.random.default_rng(1), seq0=200)
     parser = FrameParser()
-    assert parser.feed(encode_all(frames)) == frames
+    assert parser.feed(encode_all(frames)) + parser.flush() == frames
     assert (parser.frames, parser.crc_errors, parser.lost_frames, parser.bytes_skipped) == \
         (600, 0, 0, 0)
 
@@ -73,7 +76,7 @@ def test_garbage_between_frames():
         pieces.append(rng.integers(0, 256, int(rng.integers(0, 30)), dtype=np.uint8).tobytes())
         pieces.append(b'\xa5\x5a' + bytes(5))           # a false sync cut short
     parser = FrameParser()
-    out = parser.feed(b''.join(pieces))
+    out = parser.feed(b''.join(pieces)) + parser.flush()
     assert out == frames
     assert parser.lost_frames == 0
     assert parser.bytes_skipped > 0
@@ -84,13 +87,13 @@ def test_split_feeds_at_every_boundary():
     data = b'\x00\xa5' + encode_all(frames) + b'\x5a\x11'
     for cut in range(len(data) + 1):
         parser = FrameParser()
-        out = parser.feed(data[:cut]) + parser.feed(data[cut:])
+        out = parser.feed(data[:cut]) + parser.feed(data[cut:]) + parser.flush()
         assert out == frames, cut
     parser = FrameParser()
     out = []
     for k in range(len(data)):
         out += parser.feed(data[k:k + 1])
-    assert out == frames
+    assert out + parser.flush() == frames
     assert parser.crc_errors == 0
 
 
@@ -110,7 +113,7 @@ def test_corruption_loses_no_intact_frame():
     raw = data.tobytes()
     for k in range(0, len(raw), 997):              # odd chunk size: frames split too
         out += parser.feed(raw[k:k + 997])
-    got = set(out)
+    got = set(out + parser.flush())
     lost = [f for f in intact if f not in got]
     assert lost == []
     assert parser.crc_errors > 0
@@ -123,7 +126,7 @@ def test_sequence_gaps_counted_with_wrap():
     frames = random_frames(300, np.random.default_rng(5), seq0=250)
     keep = [f for k, f in enumerate(frames) if k not in (3, 4, 5, 100, 299 - 1)]
     parser = FrameParser()
-    assert len(parser.feed(encode_all(keep))) == len(keep)
+    assert len(parser.feed(encode_all(keep)) + parser.flush()) == len(keep)
     assert parser.lost_frames == 5
     parser.reset()                               # after a reconnect: no gap across it
     parser.feed(encode_frame(77, 0, (0,) * 7))
@@ -239,3 +242,98 @@ def test_clock_mapper_resets_on_device_reset():
     # A forward jump far beyond the host time elapsed is a reset too.
     mapper.update(10_000 + 3_000_000_000 // 2, later + 0.02)
     assert mapper.resets == 2
+
+
+def sensor_frames(n, seq0=0, t0=1000, period=1000, temp=1335):
+    return [RawFrame((seq0 + k) & 0xFF, (t0 + k * period) & 0xFFFFFFFF,
+                     (10 * k, -5, 16384, temp, 3, -3, 0)) for k in range(n)]
+
+
+def test_crc_valid_frame_that_does_not_continue_the_stream_is_rejected():
+    """A CRC-valid candidate with a seq/t_us that do not fit (false sync, damage) is dropped."""
+    frames = sensor_frames(10)
+    fakes = [RawFrame(7, 123456, (1, 2, 3, 1335, 4, 5, 6)),           # t_us off
+             RawFrame(200, frames[5].t_us + 500, (1, 2, 3, 1335, 4, 5, 6)),  # seq off
+             RawFrame(frames[4].seq + 1, frames[4].t_us + 1000, (0, 0, 0, 30000, 0, 0, 0))]
+    data = b''.join(encode_frame(*f) for f in frames[:5]) + \
+        b''.join(encode_frame(*f) for f in fakes) + \
+        b''.join(encode_frame(*f) for f in frames[5:])
+    parser = FrameParser()
+    assert parser.feed(data) + parser.flush() == frames
+    assert parser.rejected == 3 and parser.lost_frames == 0
+
+
+def test_relock_after_device_restart_and_long_gap():
+    before = sensor_frames(5, seq0=100, t0=50_000_000)
+    after = sensor_frames(5, seq0=0, t0=200)                            # clock restarted
+    later = sensor_frames(5, seq0=77, t0=900_000_000)                   # 850 s later
+    parser = FrameParser()
+    out = parser.feed(b''.join(encode_frame(*f) for f in before + after + later))
+    assert out + parser.flush() == before + after + later
+    assert parser.lost_frames == 0
+
+
+def test_temperature_plausibility():
+    frames = sensor_frames(6)
+    hot = frames[3]._replace(counts=frames[3].counts[:3] + (32000,) + frames[3].counts[4:])
+    jump = frames[4]._replace(counts=frames[4].counts[:3] + (1335 + 3000,)
+                              + frames[4].counts[4:])                   # +9 °C in 1 ms
+    parser = FrameParser()
+    out = parser.feed(b''.join(encode_frame(*f) for f in frames[:3] + [hot, jump] + frames[5:]))
+    assert out + parser.flush() == frames[:3] + frames[5:]
+    assert parser.lost_frames == 2 and parser.rejected == 2
+    # An MPU-6050 at 25 °C reads -3920 counts: plausible for the default (any chip) range.
+    cold = sensor_frames(3, temp=-3920)
+    parser = FrameParser()
+    assert parser.feed(b''.join(encode_frame(*f) for f in cold)) == cold
+
+
+def test_optional_spike_check():
+    """With spike_counts, a one-sample spike between agreeing neighbours is not published."""
+    frames = sensor_frames(8)
+    spiked = list(frames)
+    spiked[4] = frames[4]._replace(counts=(frames[4].counts[0] + 8192,) + frames[4].counts[1:])
+    data = b''.join(encode_frame(*f) for f in spiked)
+    parser = FrameParser(spike_counts=SPIKE_COUNTS)
+    out = parser.feed(data)
+    assert out == frames[:4] + frames[5:7]                               # newest held back
+    assert parser.flush() == [frames[7]]
+    assert parser.rejected == 1 and parser.lost_frames == 1
+    step = [f._replace(counts=(f.counts[0] + (8192 if k >= 4 else 0),) + f.counts[1:])
+            for k, f in enumerate(frames)]                               # a real step: kept
+    parser = FrameParser(spike_counts=SPIKE_COUNTS)
+    assert parser.feed(b''.join(encode_frame(*f) for f in step)) + parser.flush() == step
+    assert FrameParser().feed(data) + [] == spiked                      # default: no check
+
+
+def test_mpu6050_temperature_formula():
+    conv = Converter(temp_formula='mpu6050')
+    assert conv.to_si((0, 0, 0, 340, 0, 0, 0))[1] == pytest.approx(37.53)
+    assert conv.to_counts((0, 0, 0), 36.53, (0, 0, 0))[3] == 0
+    with pytest.raises(ValueError):
+        Converter(temp_formula='bmi160')
+
+
+def test_badly_damaged_link_publishes_no_garbage():
+    """At 20 % byte corruption CRC-8 collisions abound: only sandwiched frames go out."""
+    rng = np.random.default_rng(12)
+    frames = random_frames(60000, rng, period_us=1000)
+    clean = np.frombuffer(encode_all(frames), np.uint8)
+    hit = np.flatnonzero(rng.random(len(clean)) < 0.2)
+    data = clean.copy()
+    data[hit] ^= rng.integers(1, 256, len(hit)).astype(np.uint8)
+    parser = FrameParser()
+    raw = data.tobytes()
+    out = []
+    for k in range(0, len(raw), 4096):
+        out += parser.feed(raw[k:k + 4096])
+    out += parser.flush()
+    assert parser.strict and parser.quality < 0.1
+    sent = set(frames)
+    assert all(f in sent for f in out)
+    lenient = FrameParser(strict_below=None)        # without: collisions get through
+    bad = [f for f in lenient.feed(raw) + lenient.flush() if f not in sent]
+    assert len(bad) > 5
+    clean_parser = FrameParser()
+    clean_parser.feed(encode_all(frames[:2000]))
+    assert not clean_parser.strict and clean_parser.quality > 0.9

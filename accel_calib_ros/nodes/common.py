@@ -1,16 +1,29 @@
 """
-Plumbing shared by the three nodes: parameter checks and the main loop.
+Plumbing shared by the three nodes: typed parameters, their runtime changes, the main loop.
 
-Parameters are declared with dynamic typing and checked here, so a bad value gives
-one log line naming the parameter and exit status 2 instead of a traceback.
+The parameter mechanism (``contract-params``): describe each parameter once with a
+:class:`Param` (type, range, choices, description, read-only), then
+:func:`declare_parameters` declares them all with a full ``ParameterDescriptor`` (what
+``ros2 param describe`` shows), checks the start-up values (a bad one raises
+:class:`ParameterProblem`: one log line and exit status 2 through :func:`run`), and
+registers the callbacks that check every later ``ros2 param set``: type, range,
+finiteness, choices. A valid change is stored and handed to the node's ``on_change``
+hook, which applies it (or raises :class:`ParameterProblem` to refuse it); a refused
+change leaves everything as it was and ``SetParametersResult.reason`` says why. An
+integer given for a floating-point parameter (a YAML ``2`` for ``2.0``) is accepted.
+
+The older per-value checks (:func:`declare`, :func:`number`, :func:`integer`,
+:func:`text`, :func:`choice`) remain for code not yet moved to :class:`Param`.
 """
 
 import math
 import sys
 
-from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                ParameterType, SetParametersResult)
 import rclpy
 from rclpy.executors import ExternalShutdownException
+from rclpy.parameter import Parameter
 
 
 class ParameterProblem(ValueError):
@@ -110,6 +123,253 @@ def choice(name, value, allowed):
             return option
     text = ', '.join(str(a) for a in allowed)
     raise ParameterProblem(f'parameter {name!r} must be one of {text}; got {value!r}')
+
+
+# -- typed parameters (contract-params) ----------------------------------------------------
+
+_KINDS = {
+    'bool': ParameterType.PARAMETER_BOOL,
+    'integer': ParameterType.PARAMETER_INTEGER,
+    'double': ParameterType.PARAMETER_DOUBLE,
+    'string': ParameterType.PARAMETER_STRING,
+    'double_array': ParameterType.PARAMETER_DOUBLE_ARRAY,
+    'string_array': ParameterType.PARAMETER_STRING_ARRAY,
+}
+_BIG = sys.float_info.max
+_BIG_INT = 2 ** 63 - 1
+
+
+def _is_number(value):
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _same(value, choice):
+    """Whether ``value`` equals ``choice`` (numbers compare by value, 2 == 2.0)."""
+    if _is_number(value) and _is_number(choice):
+        return value == choice
+    return type(value) is type(choice) and value == choice
+
+
+class Param:
+    """
+    One node parameter: its type, default, allowed values and description.
+
+    :param name: parameter name.
+    :param default: default value; its Python type sets the parameter type unless
+        ``kind`` is given (bool, int -> integer, float -> double, str -> string).
+    :param description: one line for ``ros2 param describe`` (units in it).
+    :param low: smallest allowed value (numbers; None = unbounded).
+    :param high: largest allowed value (numbers; None = unbounded).
+    :param low_open: the value must be strictly above ``low``.
+    :param high_open: the value must be strictly below ``high``.
+    :param choices: allowed values (strings or numbers), or None.
+    :param empty_ok: for strings: whether '' is allowed.
+    :param read_only: a change needs a restart: refused at runtime.
+    :param kind: 'bool', 'integer', 'double', 'string', 'double_array' or 'string_array'.
+    :param length: for arrays: the required number of elements, or None.
+    """
+
+    def __init__(self, name, default, description, low=None, high=None, low_open=False,
+                 high_open=False, choices=None, empty_ok=True, read_only=False, kind=None,
+                 length=None):
+        if kind is None:
+            if isinstance(default, bool):
+                kind = 'bool'
+            elif isinstance(default, int):
+                kind = 'integer'
+            elif isinstance(default, float):
+                kind = 'double'
+            elif isinstance(default, str):
+                kind = 'string'
+            else:
+                raise TypeError(f'parameter {name!r}: give kind= for a default {default!r}')
+        if kind not in _KINDS:
+            raise ValueError(f'parameter {name!r}: unknown kind {kind!r}')
+        self.name, self.description, self.kind = name, description, kind
+        self.low, self.high, self.low_open, self.high_open = low, high, low_open, high_open
+        self.choices = None if choices is None else tuple(choices)
+        self.empty_ok, self.read_only, self.length = empty_ok, read_only, length
+        self.default = self.check(default)
+
+    # -- validation ----------------------------------------------------------------------
+    def constraints(self):
+        """Return the allowed values in words ('' when any value of the type goes)."""
+        parts = []
+        if self.choices is not None:
+            parts.append('one of ' + ', '.join(str(c) for c in self.choices))
+        if self.low is not None:
+            parts.append(f'{">" if self.low_open else ">="} {self.low:g}')
+        if self.high is not None:
+            parts.append(f'{"<" if self.high_open else "<="} {self.high:g}')
+        if self.kind == 'string' and not self.empty_ok:
+            parts.append('not empty')
+        if self.kind in ('double', 'double_array'):
+            parts.append('finite')
+        if self.length is not None:
+            parts.append(f'{self.length} elements')
+        return ', '.join(parts)
+
+    def _problem(self, what, value):
+        return ParameterProblem(f'parameter {self.name!r} must be {what}, got {value!r}')
+
+    def _number(self, value):
+        """Check one number against type, finiteness and range; return it typed."""
+        if self.kind in ('integer',):
+            if not isinstance(value, int) or isinstance(value, bool):
+                raise self._problem('an integer', value)
+        else:
+            if not _is_number(value) or not math.isfinite(value):
+                raise self._problem('a finite number', value)
+            value = float(value)
+        if self.low is not None and (value < self.low or (self.low_open and value <= self.low)):
+            raise self._problem(f'{">" if self.low_open else ">="} {self.low:g}', value)
+        if self.high is not None and (value > self.high
+                                      or (self.high_open and value >= self.high)):
+            raise self._problem(f'{"<" if self.high_open else "<="} {self.high:g}', value)
+        return value
+
+    def check(self, value):
+        """
+        Check a value for this parameter and return it with the declared type.
+
+        :param value: value as given (YAML, command line, ``ros2 param set``).
+        :return: the value (int -> float for a double parameter, tuples -> lists).
+        :raises ParameterProblem: wrong type, not finite, out of range, not a choice.
+        """
+        kind = self.kind
+        if kind == 'bool':
+            if not isinstance(value, bool):
+                raise self._problem('true or false', value)
+        elif kind in ('integer', 'double'):
+            value = self._number(value)
+        elif kind == 'string':
+            if not isinstance(value, str):
+                raise self._problem('a string', value)
+            if not value and not self.empty_ok:
+                raise ParameterProblem(f'parameter {self.name!r} must not be empty')
+        else:
+            if isinstance(value, str) or not hasattr(value, '__len__'):
+                raise self._problem('a list', value)
+            if self.length is not None and len(value) != self.length:
+                raise self._problem(f'a list of {self.length}', value)
+            if kind == 'double_array':
+                value = [self._number(v) for v in value]
+            else:
+                if not all(isinstance(v, str) for v in value):
+                    raise self._problem('a list of strings', value)
+                value = list(value)
+        if self.choices is not None and not any(_same(value, c) for c in self.choices):
+            raise self._problem('one of ' + ', '.join(str(c) for c in self.choices), value)
+        return value
+
+    # -- description ---------------------------------------------------------------------
+    def descriptor(self):
+        """Return the rcl_interfaces ParameterDescriptor of this parameter."""
+        d = ParameterDescriptor(name=self.name, type=_KINDS[self.kind],
+                                description=self.description
+                                + (' (read-only: restart the node to change it)'
+                                   if self.read_only else ''),
+                                additional_constraints=self.constraints(),
+                                read_only=self.read_only)
+        if self.kind in ('double', 'double_array') and (self.low is not None
+                                                        or self.high is not None):
+            d.floating_point_range = [FloatingPointRange(
+                from_value=-_BIG if self.low is None else float(self.low),
+                to_value=_BIG if self.high is None else float(self.high), step=0.0)]
+        elif self.kind == 'integer' and (self.low is not None or self.high is not None):
+            d.integer_range = [IntegerRange(
+                from_value=-_BIG_INT if self.low is None else int(math.ceil(self.low)),
+                to_value=_BIG_INT if self.high is None else int(math.floor(self.high)),
+                step=0)]
+        return d
+
+
+class Parameters(dict):
+    """
+    The node's current parameter values (a dict name -> value) kept in step with ROS.
+
+    Built by :func:`declare_parameters`; ``specs`` maps each name to its :class:`Param`.
+    """
+
+    def __init__(self, specs):
+        super().__init__((p.name, p.default) for p in specs)
+        self.specs = {p.name: p for p in specs}
+
+
+def declare_parameters(node, specs, on_change=None):
+    """
+    Declare typed, ranged, documented parameters and check every runtime change.
+
+    Start-up values (``-p``, ``--params-file``) are checked first: a bad one raises
+    :class:`ParameterProblem` naming the parameter (exit status 2 through :func:`run`).
+    Later changes (``ros2 param set``, the SetParameters service,
+    ``node.set_parameters``) pass rclpy's descriptor checks (type, range, read-only),
+    then :meth:`Param.check` (finite, open bounds, choices); the accepted values are
+    stored in the returned dict and ``on_change(changes)`` is called with
+    ``{name: value}`` of the changed ones. If the hook raises :class:`ParameterProblem`
+    (or ValueError) the stored values are restored and the change is refused with the
+    message as its reason.
+
+    :param node: the rclpy Node.
+    :param specs: list of :class:`Param`.
+    :param on_change: callable(changes dict) applying a change, or None (then every
+        parameter is effectively read-only: changes are refused with a reason).
+    :return: :class:`Parameters`, the live values.
+    :raises ParameterProblem: a start-up value is not allowed.
+    """
+    values = Parameters(specs)
+    overrides = getattr(node, '_parameter_overrides', {}) or {}
+    for spec in specs:
+        value = spec.default
+        if spec.name in overrides:
+            value = spec.check(overrides[spec.name].value)
+        node.declare_parameter(spec.name, value, spec.descriptor(), ignore_override=True)
+        values[spec.name] = value
+
+    def coerce(parameters):
+        """Let an integer stand for a floating-point value (pre-set: before type checks)."""
+        out = []
+        for p in parameters:
+            spec = values.specs.get(p.name)
+            if spec is not None and spec.kind == 'double' and p.type_ == Parameter.Type.INTEGER:
+                p = Parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
+            elif spec is not None and spec.kind == 'double_array' \
+                    and p.type_ == Parameter.Type.INTEGER_ARRAY:
+                p = Parameter(p.name, Parameter.Type.DOUBLE_ARRAY, [float(v) for v in p.value])
+            out.append(p)
+        return out
+
+    def on_set(parameters):
+        changes = {}
+        try:
+            for p in parameters:
+                spec = values.specs.get(p.name)
+                if spec is None:
+                    continue
+                if on_change is None:
+                    raise ParameterProblem(
+                        f'parameter {p.name!r} cannot be changed at runtime: restart the node')
+                changes[p.name] = spec.check(p.value)
+        except ParameterProblem as err:
+            node.get_logger().warning(f'refused: {err}')
+            return SetParametersResult(successful=False, reason=str(err))
+        if not changes:
+            return SetParametersResult(successful=True)
+        saved = {k: values[k] for k in changes}
+        values.update(changes)
+        try:
+            on_change(changes)
+        except (ParameterProblem, ValueError) as err:
+            values.update(saved)
+            node.get_logger().warning(f'refused: {err}')
+            return SetParametersResult(successful=False, reason=str(err))
+        node.get_logger().info('parameters changed: ' + ', '.join(
+            f'{k}={v!r}' for k, v in changes.items()))
+        return SetParametersResult(successful=True)
+
+    node.add_pre_set_parameters_callback(coerce)
+    node.add_on_set_parameters_callback(on_set)
+    return values
 
 
 def run(node_class, logger_name, args=None):

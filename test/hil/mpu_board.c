@@ -1,0 +1,495 @@
+/*
+ * mpu_board: an emulated Arduino Uno (ATmega328P, 16 MHz, simavr) with an emulated
+ * InvenSense MPU-9250-class sensor on its TWI bus, for hardware-in-the-loop tests.
+ *
+ * Copyright (C) 2026 accel_calib_ros contributors.
+ *
+ * This program is free software: you can redistribute it and/or modify it under the
+ * terms of the GNU General Public License as published by the Free Software Foundation,
+ * either version 3 of the License, or (at your option) any later version. It links
+ * libsimavr (GPL-3), so it is a separate test program: it is built only by the tests
+ * and never installed with the accel_calib_ros package.
+ *
+ * This program is distributed in the hope that it will be useful, but WITHOUT ANY
+ * WARRANTY; without even the implied warranty of MERCHANTABILITY or FITNESS FOR A
+ * PARTICULAR PURPOSE. See the GNU General Public License for more details:
+ * <https://www.gnu.org/licenses/>.
+ *
+ * The sensor model follows the register map: WHO_AM_I, reset state (DLPF_CFG 0 means an
+ * internal rate of 8 kHz; the MPU-6050 wakes up asleep), H_RESET, SMPLRT_DIV, CONFIG,
+ * PWR_MGMT_1 sleep, INT_PIN_CFG (active level, latch, any-read clear), INT_ENABLE, and
+ * INT_STATUS (clears on read). Each sample writes seven big-endian counts to 0x3B..0x48,
+ * sets DATA_RDY_INT and drives INT (on PD2 = INT0). The UART goes to a pty (symlink
+ * --link) or a file. simavr 1.6 quirks are repaired here: TWINT is made to clear when
+ * written with 1, and the status after SLA+W reads 0x18/0x20 (not 0x28/0x30).
+ *
+ * Usage: mpu_board --elf FW.elf [--link PATH | --uart-out FILE] [--seconds S]
+ *        [--who 0x71 | --who none] [--seed N] [--samples FILE] [--log FILE] [--fast]
+ *        [--wait-open S]   (start the board only once the pty is opened, S s at most)
+ *        [--raw-twi]       (keep simavr 1.6's TWI quirks, to check the firmware copes)
+ * On exit (after S simulated seconds, or SIGINT/SIGTERM) one JSON line on stdout reports
+ * what the firmware configured and how much it sent.
+ */
+#define _GNU_SOURCE
+#include <errno.h>
+#include <fcntl.h>
+#include <poll.h>
+#include <signal.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <termios.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <simavr/avr_ioport.h>
+#include <simavr/avr_twi.h>
+#include <simavr/avr_uart.h>
+#include <simavr/sim_avr.h>
+#include <simavr/sim_elf.h>
+#include <simavr/sim_time.h>
+
+#define F_CPU_HZ 16000000u
+#define MPU_ADDR 0x68
+/* ATmega328P data addresses */
+#define A_TWBR 0xB8
+#define A_TWSR 0xB9
+#define A_TWCR 0xBC
+#define A_UCSR0A 0xC0
+#define A_UBRR0L 0xC4
+#define A_UBRR0H 0xC5
+#define TWINT_BIT 0x80
+
+static avr_t *avr;
+static int raw_twi;               /* --raw-twi: keep simavr 1.6's TWI quirks */
+static volatile sig_atomic_t stop_requested;
+
+/* ---- sensor model -------------------------------------------------------------- */
+static uint8_t reg[128];
+static int who = 0x71;            /* -1: no device answers at 0x68 */
+static int selected, reg_index_pending, ptr;
+static int addr_phase_write;      /* the last TWI byte sent was SLA+W */
+static avr_irq_t *twi_in, *int_pin;
+static int pin_level;
+static uint64_t samples_made, int_status_reads, twi_writes, bursts_0x3b;
+static uint64_t seed_state = 88172645463325252ull;
+static int16_t *script;
+static size_t script_rows;
+static int16_t temp_count;
+static FILE *log_file;
+static avr_cycle_count_t sample_cycles;
+static uint32_t last_rate_hz;
+
+static uint64_t xorshift(void)
+{
+    seed_state ^= seed_state << 13;
+    seed_state ^= seed_state >> 7;
+    seed_state ^= seed_state << 17;
+    return seed_state;
+}
+
+static void sensor_reset(void)
+{
+    memset(reg, 0, sizeof reg);
+    reg[0x6B] = (who == 0x68) ? 0x40 : 0x01;   /* 6050 wakes up asleep */
+    reg[0x75] = (uint8_t)(who < 0 ? 0 : who);
+}
+
+static int active_level(void) { return (reg[0x37] & 0x80) ? 0 : 1; }
+
+static void set_pin(int asserted)
+{
+    int level = asserted ? active_level() : !active_level();
+    if (level != pin_level) {
+        pin_level = level;
+        avr_raise_irq(int_pin, level);
+    }
+}
+
+static void clear_int(void)
+{
+    reg[0x3A] &= (uint8_t)~0x01;
+    if (reg[0x37] & 0x20)           /* latched: released when cleared */
+        set_pin(0);
+}
+
+static uint8_t sensor_read(void)
+{
+    uint8_t r = (uint8_t)(ptr & 0x7F);
+    uint8_t v = reg[r];
+    if (r == 0x3A) {
+        ++int_status_reads;
+        clear_int();
+    } else if (reg[0x37] & 0x10) {  /* INT_ANYRD_2CLEAR */
+        clear_int();
+    }
+    ptr = (ptr + 1) & 0x7F;
+    return v;
+}
+
+static void sensor_write(uint8_t value)
+{
+    uint8_t r = (uint8_t)(ptr & 0x7F);
+    ++twi_writes;
+    if (r == 0x6B && (value & 0x80)) {
+        sensor_reset();
+    } else if (r != 0x75 && r != 0x3A && !(r >= 0x3B && r <= 0x60)) {
+        reg[r] = value;
+    }
+    ptr = (ptr + 1) & 0x7F;
+}
+
+/* Internal rate 1 kHz when 0 < DLPF_CFG < 7 (and FCHOICE_B = 0), else 8 kHz. */
+static uint32_t sample_rate_hz(void)
+{
+    uint8_t dlpf = reg[0x1A] & 0x07;
+    uint32_t internal = (dlpf >= 1 && dlpf <= 6 && (reg[0x1B] & 0x03) == 0) ? 1000u : 8000u;
+    return internal / (1u + reg[0x19]);
+}
+
+static avr_cycle_count_t pulse_end(avr_t *a, avr_cycle_count_t when, void *param)
+{
+    (void)a; (void)when; (void)param;
+    if (!(reg[0x37] & 0x20))
+        set_pin(0);
+    return 0;
+}
+
+static avr_cycle_count_t sample_tick(avr_t *a, avr_cycle_count_t when, void *param)
+{
+    int16_t c[7];
+    int i;
+    (void)param;
+    if (who < 0 || (reg[0x6B] & 0x40)) {        /* no sensor or asleep: look again in 1 ms */
+        last_rate_hz = 0;
+        return when + F_CPU_HZ / 1000u;
+    }
+    last_rate_hz = sample_rate_hz();
+    if (script) {
+        const int16_t *row = script + 7 * (samples_made % script_rows);
+        for (i = 0; i < 7; ++i)
+            c[i] = row[i];
+    } else {
+        for (i = 0; i < 7; ++i)
+            c[i] = (int16_t)(xorshift() & 0xFFFF);
+        temp_count = (int16_t)(temp_count + (int)(xorshift() % 7) - 3);
+        c[3] = temp_count;
+    }
+    for (i = 0; i < 7; ++i) {
+        reg[0x3B + 2 * i] = (uint8_t)((uint16_t)c[i] >> 8);
+        reg[0x3C + 2 * i] = (uint8_t)((uint16_t)c[i] & 0xFF);
+    }
+    if (log_file)
+        fprintf(log_file, "%llu %llu %d %d %d %d %d %d %d\n",
+                (unsigned long long)samples_made,
+                (unsigned long long)(a->cycle / (F_CPU_HZ / 1000000u)),
+                c[0], c[1], c[2], c[3], c[4], c[5], c[6]);
+    ++samples_made;
+    reg[0x3A] |= 0x01;
+    if (reg[0x38] & 0x01) {
+        set_pin(1);
+        if (!(reg[0x37] & 0x20))
+            avr_cycle_timer_register_usec(a, 50, pulse_end, NULL);
+    }
+    sample_cycles = F_CPU_HZ / last_rate_hz;
+    return when + sample_cycles;
+}
+
+/* TWI slave side: messages from the master (simavr's TWI_IRQ_OUTPUT). */
+static void twi_hook(avr_irq_t *irq, uint32_t value, void *param)
+{
+    avr_twi_msg_irq_t m;
+    (void)irq; (void)param;
+    m.u.v = value;
+    if (m.u.twi.msg & TWI_COND_STOP)
+        selected = 0;
+    if (m.u.twi.msg & TWI_COND_START) {
+        selected = 0;
+        addr_phase_write = !(m.u.twi.addr & 1);
+        if (who >= 0 && (m.u.twi.addr >> 1) == MPU_ADDR) {
+            selected = m.u.twi.addr;
+            reg_index_pending = !(m.u.twi.addr & 1);
+            if ((m.u.twi.addr & 1) && ptr == 0x3B)
+                ++bursts_0x3b;
+            avr_raise_irq(twi_in, avr_twi_irq_msg(TWI_COND_ACK, selected, 1));
+        }
+        return;
+    }
+    if (!selected)
+        return;
+    if (m.u.twi.msg & TWI_COND_WRITE) {
+        addr_phase_write = 0;
+        avr_raise_irq(twi_in, avr_twi_irq_msg(TWI_COND_ACK, selected, 1));
+        if (reg_index_pending) {
+            ptr = m.u.twi.data & 0x7F;
+            reg_index_pending = 0;
+        } else {
+            sensor_write(m.u.twi.data);
+        }
+    }
+    if (m.u.twi.msg & TWI_COND_READ)
+        avr_raise_irq(twi_in, avr_twi_irq_msg(TWI_COND_READ, selected, sensor_read()));
+}
+
+/* simavr 1.6: the status after SLA+W comes out as 0x28/0x30; silicon says 0x18/0x20. */
+static void twi_status_hook(avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)param;
+    if (raw_twi)
+        return;
+    if (addr_phase_write && (value == 0x28 || value == 0x30)) {
+        avr->data[A_TWSR] = (uint8_t)((avr->data[A_TWSR] & 0x07) | (value == 0x28 ? 0x18 : 0x20));
+        addr_phase_write = 0;
+    }
+}
+
+/* simavr 1.6: TWINT is sticky; writing 1 to it must clear it until the operation ends. */
+static void twcr_write_hook(avr_t *a, avr_io_addr_t addr, uint8_t v, void *param)
+{
+    (void)param;
+    if (!raw_twi && (v & TWINT_BIT))
+        a->data[addr] &= (uint8_t)~TWINT_BIT;
+}
+
+/* ---- UART <-> pty or file ------------------------------------------------------- */
+static int out_fd = -1, in_fd = -1, slave_keep = -1;
+static uint8_t *obuf;
+static size_t olen, ocap = 1u << 22;
+static uint64_t uart_bytes, uart_dropped;
+static avr_irq_t *uart_in;
+
+static void uart_hook(avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)param;
+    ++uart_bytes;
+    if (olen < ocap)
+        obuf[olen++] = (uint8_t)value;
+    else
+        ++uart_dropped;
+}
+
+static void flush_out(void)
+{
+    size_t done = 0;
+    while (done < olen) {
+        ssize_t n = write(out_fd, obuf + done, olen - done);
+        if (n <= 0)
+            break;
+        done += (size_t)n;
+    }
+    if (done) {
+        memmove(obuf, obuf + done, olen - done);
+        olen -= done;
+    }
+}
+
+static void poll_in(void)
+{
+    uint8_t b[64];
+    ssize_t n, i;
+    if (in_fd < 0)
+        return;
+    n = read(in_fd, b, sizeof b);
+    for (i = 0; i < n; ++i)
+        avr_raise_irq(uart_in, b[i]);
+}
+
+static void no_sleep(avr_t *a, avr_cycle_count_t how_long)
+{
+    (void)a; (void)how_long;
+}
+
+static void on_signal(int sig)
+{
+    (void)sig;
+    stop_requested = 1;
+}
+
+static uint64_t wall_ns(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (uint64_t)ts.tv_sec * 1000000000ull + (uint64_t)ts.tv_nsec;
+}
+
+static int open_pty(const char *link, int keep_slave)
+{
+    int m = posix_openpt(O_RDWR | O_NOCTTY);
+    struct termios t;
+    if (m < 0 || grantpt(m) || unlockpt(m))
+        return -1;
+    /* Open the slave once: keeping it open keeps the pty alive; closing it again makes
+     * the master report POLLHUP until the driver opens it (see --wait-open). */
+    slave_keep = open(ptsname(m), O_RDWR | O_NOCTTY);
+    if (slave_keep < 0)
+        return -1;
+    if (!keep_slave) {
+        close(slave_keep);
+        slave_keep = -1;
+    }
+    tcgetattr(m, &t);
+    cfmakeraw(&t);
+    tcsetattr(m, TCSANOW, &t);
+    unlink(link);
+    if (symlink(ptsname(m), link))
+        return -1;
+    fcntl(m, F_SETFL, O_NONBLOCK);
+    return m;
+}
+
+int main(int argc, char **argv)
+{
+    const char *elf = NULL, *link = NULL, *uart_out = NULL, *samples = NULL, *log_path = NULL;
+    double seconds = 5.0, wait_open = 0.0;
+    int fast = 0, i, state = cpu_Running;
+    elf_firmware_t fw;
+    uint64_t t0, next_service, end_cycle;
+
+    for (i = 1; i < argc; ++i) {
+        const char *a = argv[i];
+        const char *v = (i + 1 < argc) ? argv[i + 1] : NULL;
+        if (!strcmp(a, "--fast")) { fast = 1; continue; }
+        if (!strcmp(a, "--raw-twi")) { raw_twi = 1; continue; }
+        if (!v) { fprintf(stderr, "mpu_board: %s needs a value\n", a); return 2; }
+        ++i;
+        if (!strcmp(a, "--elf")) elf = v;
+        else if (!strcmp(a, "--link")) link = v;
+        else if (!strcmp(a, "--uart-out")) uart_out = v;
+        else if (!strcmp(a, "--seconds")) seconds = atof(v);
+        else if (!strcmp(a, "--who")) who = strcmp(v, "none") ? (int)strtol(v, NULL, 0) : -1;
+        else if (!strcmp(a, "--seed")) seed_state ^= strtoull(v, NULL, 0) * 0x9E3779B97F4A7C15ull;
+        else if (!strcmp(a, "--samples")) samples = v;
+        else if (!strcmp(a, "--log")) log_path = v;
+        else if (!strcmp(a, "--wait-open")) wait_open = atof(v);
+        else { fprintf(stderr, "mpu_board: unknown option %s\n", a); return 2; }
+    }
+    if (!elf || (!link && !uart_out) || !(seconds > 0)) {
+        fprintf(stderr, "usage: mpu_board --elf FW.elf (--link PATH | --uart-out FILE) "
+                "[--seconds S] [--who 0x71|none] [--seed N] [--samples FILE] [--log FILE] "
+                "[--fast]\n");
+        return 2;
+    }
+    if (samples) {
+        FILE *f = fopen(samples, "rb");
+        long size;
+        if (!f) { perror(samples); return 2; }
+        fseek(f, 0, SEEK_END);
+        size = ftell(f);
+        rewind(f);
+        script_rows = (size_t)size / 14u;
+        script = malloc(script_rows * 14u + 14u);
+        if (!script_rows || fread(script, 14, script_rows, f) != script_rows) {
+            fprintf(stderr, "mpu_board: %s: expected rows of 7 int16\n", samples);
+            return 2;
+        }
+        fclose(f);
+    }
+    temp_count = (int16_t)(who == 0x68 ? -3920 : 1335);     /* about 25 degC */
+    if (log_path && !(log_file = fopen(log_path, "w"))) { perror(log_path); return 2; }
+    obuf = malloc(ocap);
+
+    if (elf_read_firmware(elf, &fw)) { fprintf(stderr, "mpu_board: cannot read %s\n", elf); return 2; }
+    avr = avr_make_mcu_by_name("atmega328p");
+    if (!avr) { fprintf(stderr, "mpu_board: no atmega328p core\n"); return 2; }
+    avr_init(avr);
+    avr->log = LOG_ERROR;
+    fw.frequency = F_CPU_HZ;
+    avr_load_firmware(avr, &fw);
+    avr->frequency = F_CPU_HZ;
+    avr->sleep = no_sleep;
+
+    {   /* UART: no poll-sleep, no stdio echo; output to our buffer */
+        uint32_t flags = 0;
+        avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &flags);
+        flags &= ~(uint32_t)(AVR_UART_FLAG_POLL_SLEEP | AVR_UART_FLAG_STDIO);
+        avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
+        avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT),
+                                uart_hook, NULL);
+        uart_in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
+    }
+    twi_in = avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_INPUT);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_OUTPUT),
+                            twi_hook, NULL);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_STATUS),
+                            twi_status_hook, NULL);
+    avr_register_io_write(avr, A_TWCR, twcr_write_hook, NULL);
+    int_pin = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 2);
+    sensor_reset();
+    pin_level = !active_level();
+    avr_raise_irq(int_pin, pin_level);
+    avr_cycle_timer_register_usec(avr, 1000, sample_tick, NULL);
+
+    signal(SIGINT, on_signal);
+    signal(SIGTERM, on_signal);
+    signal(SIGPIPE, SIG_IGN);
+    if (link) {
+        out_fd = in_fd = open_pty(link, !(wait_open > 0));
+        if (out_fd < 0) { perror("mpu_board: pty"); return 2; }
+        if (wait_open > 0) {    /* power the board up when the driver opens the port */
+            uint64_t deadline = wall_ns() + (uint64_t)(wait_open * 1e9);
+            for (;;) {
+                struct pollfd pfd = {out_fd, POLLIN, 0};
+                poll(&pfd, 1, 0);
+                if (!(pfd.revents & POLLHUP) || wall_ns() > deadline || stop_requested)
+                    break;
+                usleep(2000);
+            }
+        }
+    } else {
+        out_fd = open(uart_out, O_WRONLY | O_CREAT | O_TRUNC, 0644);
+        if (out_fd < 0) { perror(uart_out); return 2; }
+    }
+
+    end_cycle = (avr_cycle_count_t)(seconds * F_CPU_HZ);
+    next_service = F_CPU_HZ / 1000u;
+    t0 = wall_ns();                     /* after --wait-open: simulated time starts now */
+    while (!stop_requested && avr->cycle < end_cycle) {
+        state = avr_run(avr);
+        if (state == cpu_Done || state == cpu_Crashed)
+            break;
+        if (avr->cycle >= next_service) {
+            next_service = avr->cycle + F_CPU_HZ / 1000u;
+            flush_out();
+            poll_in();
+            if (!fast) {
+                uint64_t sim_ns = avr->cycle * (1000000000ull / F_CPU_HZ) / 1ull;
+                uint64_t now = wall_ns() - t0;
+                if (sim_ns > now + 1000000ull) {
+                    struct timespec ts = {0, (long)(sim_ns - now)};
+                    nanosleep(&ts, NULL);
+                }
+            }
+        }
+    }
+    flush_out();
+    {
+        double sim_s = (double)avr->cycle / F_CPU_HZ;
+        double wall_s = (double)(wall_ns() - t0) * 1e-9;
+        unsigned ubrr = avr->data[A_UBRR0L] | ((unsigned)avr->data[A_UBRR0H] << 8);
+        int u2x = (avr->data[A_UCSR0A] & 0x02) != 0;
+        double baud = (double)F_CPU_HZ / ((u2x ? 8.0 : 16.0) * (ubrr + 1));
+        unsigned twbr = avr->data[A_TWBR], twps = avr->data[A_TWSR] & 0x03;
+        double scl = (double)F_CPU_HZ / (16.0 + 2.0 * twbr * (1u << (2 * twps)));
+        printf("{\"state\": \"%s\", \"sim_seconds\": %.6f, \"wall_seconds\": %.3f, "
+               "\"samples\": %llu, \"sample_rate_hz\": %u, \"uart_bytes\": %llu, "
+               "\"uart_dropped\": %llu, \"pending_out\": %zu, \"baud\": %.1f, \"ubrr\": %u, "
+               "\"u2x\": %d, \"scl_hz\": %.1f, \"int_status_reads\": %llu, "
+               "\"bursts_from_0x3b\": %llu, \"twi_register_writes\": %llu, "
+               "\"who_am_i\": %d, \"SMPLRT_DIV\": %u, \"CONFIG\": %u, \"GYRO_CONFIG\": %u, "
+               "\"ACCEL_CONFIG\": %u, \"ACCEL_CONFIG2\": %u, \"INT_PIN_CFG\": %u, "
+               "\"INT_ENABLE\": %u, \"PWR_MGMT_1\": %u}\n",
+               state == cpu_Crashed ? "crashed" : (state == cpu_Done ? "done" : "running"),
+               sim_s, wall_s, (unsigned long long)samples_made, last_rate_hz,
+               (unsigned long long)uart_bytes, (unsigned long long)uart_dropped, olen, baud,
+               ubrr, u2x, scl, (unsigned long long)int_status_reads,
+               (unsigned long long)bursts_0x3b, (unsigned long long)twi_writes, who,
+               reg[0x19], reg[0x1A], reg[0x1B], reg[0x1C], reg[0x1D], reg[0x37], reg[0x38],
+               reg[0x6B]);
+    }
+    if (log_file)
+        fclose(log_file);
+    if (link)
+        unlink(link);
+    return state == cpu_Crashed ? 1 : 0;
+}

@@ -1,0 +1,155 @@
+"""
+The driver node in-process on a pty: info frame, MPU-6050 formula, baud warning, params.
+
+Frames are written by the test itself, so each case controls exactly what the "firmware"
+says; the node runs in its own rclpy Context with an executor spun by the test.
+"""
+
+import os
+import time
+import tty
+
+from accel_calib_ros.dataio.mpu9250_frame import encode_frame, encode_info, InfoFrame
+from accel_calib_ros.nodes.driver import build_node
+from diagnostic_msgs.msg import DiagnosticArray
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Imu, Temperature
+
+pytestmark = pytest.mark.ros
+
+
+class Rig:
+    """A pty, the driver on its slave, and a subscriber node, in one Context."""
+
+    def __init__(self, tmp_path, **params):
+        self.master, slave = os.openpty()
+        tty.setraw(slave)
+        self.path = os.ttyname(slave)
+        self._slave = slave
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        overrides = [Parameter('port', value=self.path), Parameter('reconnect_min_s', value=0.05)]
+        overrides += [Parameter(k, value=v) for k, v in params.items()]
+        self.node = build_node(self.context, overrides)
+        self.logs = []
+        self.sub = rclpy.create_node('info_sub', context=self.context)
+        qos = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
+        self.imu, self.temp, self.diag = [], [], []
+        self.sub.create_subscription(Imu, 'imu/data_raw', self.imu.append, qos)
+        self.sub.create_subscription(Temperature, 'imu/temperature', self.temp.append, qos)
+        self.sub.create_subscription(DiagnosticArray, '/diagnostics', self.diag.append, 10)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.sub)
+
+    def write(self, data):
+        os.write(self.master, data)
+
+    def spin_until(self, predicate, timeout):
+        deadline = time.monotonic() + timeout
+        while not predicate():
+            if time.monotonic() > deadline:
+                return False
+            self.executor.spin_once(timeout_sec=0.05)
+        return True
+
+    def status(self):
+        for array in reversed(self.diag):
+            for s in array.status:
+                if s.name.endswith('serial'):
+                    return s, {kv.key: kv.value for kv in s.values}
+        return None, None
+
+    def close(self):
+        self.executor.shutdown(timeout_sec=1.0)
+        self.node.destroy_node()
+        self.sub.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+        os.close(self.master)
+        os.close(self._slave)
+
+
+@pytest.fixture
+def rigs(tmp_path):
+    made = []
+
+    def make(**params):
+        rig = Rig(tmp_path, **params)
+        made.append(rig)
+        return rig
+    yield make
+    for rig in made:
+        rig.close()
+
+
+def frames(n, start=0, period_us=1000, temp=0, accel=(0, 0, 2048)):
+    return b''.join(encode_frame(k & 0xFF, 5000 + k * period_us, accel + (temp, 1, 2, 3))
+                    for k in range(start, start + n))
+
+
+def test_info_frame_sets_chip_ranges_and_mpu6050_temperature(rigs):
+    rig = rigs()
+    time.sleep(0.3)                                   # the driver opens the pty
+    rig.write(encode_info(InfoFrame(0, 0x68, 16, 2000, 1000, 1, 1_000_000, (1, 0))))
+    rig.write(frames(50, temp=340))                   # 1 °C above 36.53 on an MPU-6050
+    assert rig.spin_until(lambda: len(rig.imu) >= 49 and rig.temp, 10)
+    msg = rig.imu[-1]
+    assert msg.linear_acceleration.z == pytest.approx(2048 * 9.80665 / 2048)   # ±16 g
+    assert msg.angular_velocity.x == pytest.approx(1 / 16.4 * 3.141592653589793 / 180)
+    assert rig.temp[-1].temperature == pytest.approx(37.53)
+    assert (msg.orientation.w, msg.orientation_covariance[0]) == (1.0, -1.0)
+    assert rig.spin_until(lambda: rig.status()[1] and 'chip' in rig.status()[1], 5)
+    status, values = rig.status()
+    assert values['chip'] == 'MPU-6050' and values['temperature_formula'] == 'mpu6050'
+    assert values['accel_range_g'] == '16' and values['lost_frames'] == '0'
+
+
+def test_unknown_chip_is_an_error_in_diagnostics(rigs):
+    rig = rigs()
+    time.sleep(0.3)
+    rig.write(encode_info(InfoFrame(1, 0x12, 2, 250, 1000, 1, 1_000_000, (1, 0))))
+
+    def reported():
+        status, values = rig.status()
+        return status is not None and 'unknown chip' in status.message
+    assert rig.spin_until(reported, 10)
+    status, values = rig.status()
+    assert status.level == b'\x02' and values['who_am_i'] == '0x12'
+    assert rig.imu == []
+
+
+def test_baud_too_low_for_the_rate_is_warned_and_gaps_counted(rigs):
+    rig = rigs(baud=115200)
+    time.sleep(0.3)
+    kept = b''.join(frames(1, start=k) for k in range(0, 400) if k % 2 == 0)  # half lost
+    rig.write(kept)
+    assert rig.spin_until(lambda: len(rig.imu) >= 199, 10)
+    assert rig.node._baud_warned
+    assert rig.node.parser.lost_frames == 199
+    assert rig.node.parser.period_us == pytest.approx(1000.0)
+
+
+def test_temperature_rate_parameter_and_runtime_changes(rigs):
+    rig = rigs(temperature_rate_hz=100.0)
+    node = rig.node
+    time.sleep(0.3)
+    rig.write(frames(300))                            # 0.3 s of device time at 1 kHz
+    assert rig.spin_until(lambda: len(rig.imu) >= 299, 10)
+    assert 28 <= len(rig.temp) <= 31                  # 100 Hz of the 1 kHz samples
+    d = node.describe_parameter('baud')
+    assert d.integer_range[0].from_value == 300 and 'baud' in d.description
+    assert node.describe_parameter('format').read_only
+    for name, value in (('temperature_rate_hz', -1.0), ('format', 'ascii'),
+                        ('accel_range_g', 3), ('reconnect_max_s', 0.01)):
+        (result,) = node.set_parameters([Parameter(name, value=value)])
+        assert not result.successful and result.reason, name
+    (result,) = node.set_parameters([Parameter('temperature_rate_hz', value=0)])
+    assert result.successful
+    rig.temp.clear()
+    rig.imu.clear()
+    rig.write(frames(50, start=300))
+    assert rig.spin_until(lambda: len(rig.imu) >= 50 and len(rig.temp) >= 50, 10)
