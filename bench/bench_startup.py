@@ -49,7 +49,8 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     parser.add_argument('--runs', type=int, default=9, help='runs per command (default 9)')
     args = parser.parse_args()
-    env = dict(os.environ, PYTHONDONTWRITEBYTECODE='1')
+    env = dict(os.environ)
+    env.pop('PYTHONDONTWRITEBYTECODE', None)
     script = os.path.join(os.path.dirname(sys.executable), 'accel-calib')
     cli = [script] if os.path.exists(script) else [sys.executable, '-m', 'accel_calib_ros.cli']
     with tempfile.TemporaryDirectory() as tmp:

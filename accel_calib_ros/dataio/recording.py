@@ -401,7 +401,7 @@ def _load_csv(path):
     return _checked_samples(path, columns, lines, header_lineno)
 
 
-def _iter_csv(path, chunk_rows):
+def _iter_csv(path, chunk_rows, on_read=None):
     """Yield checked Samples pieces of a CSV file, ``chunk_rows`` data lines at a time."""
     try:
         f, names, header_lineno, layout = _open_csv(path)
@@ -409,7 +409,9 @@ def _iter_csv(path, chunk_rows):
             used = list(layout)
             offset, t_before = 0, None
             try:
-                for block, _ in _parse_chunks(f, [layout[n] for n in used], chunk_rows):
+                for block, nbytes in _parse_chunks(f, [layout[n] for n in used], chunk_rows):
+                    if on_read is not None:
+                        on_read(nbytes)
                     columns = _columns(block, used)
                     piece = _checked_samples(path, columns, None, header_lineno, offset,
                                              t_before)
@@ -433,7 +435,7 @@ def _iter_csv(path, chunk_rows):
         raise InputError(f'{path}: cannot read the file ({exc.strerror or exc})') from None
 
 
-def iter_samples(path, chunk_rows=CHUNK_ROWS, imu_topic=None, temp_topic=None):
+def iter_samples(path, chunk_rows=CHUNK_ROWS, imu_topic=None, temp_topic=None, on_read=None):
     """
     Load a recording piece by piece: a generator of validated ``Samples``.
 
@@ -446,12 +448,13 @@ def iter_samples(path, chunk_rows=CHUNK_ROWS, imu_topic=None, temp_topic=None):
     :param chunk_rows: data rows per piece.
     :param imu_topic: bags only, as for ``load_samples``.
     :param temp_topic: bags only, as for ``load_samples``.
+    :param on_read: CSV only: called with the characters read for each piece (progress).
     :return: generator of Samples, in time order.
     :raises InputError: as ``load_samples``.
     """
     p = Path(path)
     if p.suffix.lower() == '.csv' and p.is_file():
-        for piece in _iter_csv(p, chunk_rows):
+        for piece in _iter_csv(p, chunk_rows, on_read):
             try:
                 yield piece.validate()
             except InputError as exc:
@@ -800,8 +803,8 @@ class CsvWriter:
             raise InputError('samples written to one CSV must all have (or lack) temp and gyro')
         checked = _check_extra(extra, len(samples))
         if [name for name, _ in checked] != self.extra_names:
-            raise InputError(f'extra columns {[n for n, _ in checked]} differ from the '
-                             f'header\'s {self.extra_names}')
+            raise InputError(f'extra columns {[n for n, _ in checked]} differ from those '
+                             f'of the header {self.extra_names}')
         for a in range(0, len(samples), self.BLOCK_ROWS):
             part = slice(a, a + self.BLOCK_ROWS)
             self._f.write(_csv_block(samples.subset(part), [v[part] for _, v in checked],
@@ -920,9 +923,8 @@ def _serialized_batch(msgtype, frame_id, ns, doubles):
     return buf
 
 
-def _write_bag_dir(bagdir, samples, imu_topic, temp_topic, frame_id, storage):
-    """Write the rosbag2 directory ``bagdir`` (must not exist) with rosbags."""
-    ts = _types()
+def _bag_batches(samples, frame_id):
+    """Serialize one piece of Samples: (stamps ns, Imu messages, Temperature messages)."""
     n = len(samples)
     ns = np.round(samples.t * 1e9).astype(np.int64)
     imu = np.zeros((n, _TAIL_DOUBLES[IMU_TYPE]))
@@ -938,19 +940,43 @@ def _write_bag_dir(bagdir, samples, imu_topic, temp_topic, frame_id, storage):
     if samples.temp is not None:
         temp_raw = _serialized_batch(TEMP_TYPE, frame_id, ns,
                                      np.column_stack([samples.temp, np.zeros(n)]))
+    return ns, imu_raw, temp_raw
+
+
+def _write_bag_dir(bagdir, pieces, imu_topic, temp_topic, frame_id, storage):
+    """Write the rosbag2 directory ``bagdir`` (must not exist) from Samples pieces."""
+    ts = _types()
     rosbag2 = _rosbags()[0]
     plugins = rosbag2.StoragePlugin
     plugin = plugins.SQLITE3 if storage == 'sqlite3' else plugins.MCAP
     with rosbag2.Writer(bagdir, version=rosbag2.Writer.VERSION_LATEST,
                         storage_plugin=plugin) as writer:
-        imu_conn = writer.add_connection(imu_topic, IMU_TYPE, typestore=ts)
-        temp_conn = None
-        if temp_raw is not None:
-            temp_conn = writer.add_connection(temp_topic, TEMP_TYPE, typestore=ts)
-        for i, stamp in enumerate(ns.tolist()):
-            writer.write(imu_conn, stamp, imu_raw[i].tobytes())
-            if temp_conn is not None:
-                writer.write(temp_conn, stamp, temp_raw[i].tobytes())
+        imu_conn = temp_conn = None
+        for samples in pieces:
+            ns, imu_raw, temp_raw = _bag_batches(samples, frame_id)
+            if imu_conn is None:
+                imu_conn = writer.add_connection(imu_topic, IMU_TYPE, typestore=ts)
+                if temp_raw is not None:
+                    temp_conn = writer.add_connection(temp_topic, TEMP_TYPE, typestore=ts)
+            for i, stamp in enumerate(ns.tolist()):
+                writer.write(imu_conn, stamp, imu_raw[i].tobytes())
+                if temp_conn is not None:
+                    writer.write(temp_conn, stamp, temp_raw[i].tobytes())
+
+
+def _checked_pieces(first, rest):
+    """Yield ``first`` then ``rest``: validated, times in order, the same columns in each."""
+    yield first
+    t_last = first.t[-1]
+    for piece in rest:
+        piece.validate()
+        if (piece.temp is None) != (first.temp is None) or \
+                (piece.gyro is None) != (first.gyro is None):
+            raise InputError('samples written to one bag must all have (or lack) temp and gyro')
+        if piece.t[0] < t_last:
+            raise InputError('bag samples must be in increasing time order')
+        t_last = piece.t[-1]
+        yield piece
 
 
 def _fsync_tree(directory):
@@ -978,7 +1004,8 @@ def write_bag(path, samples, imu_topic='/imu/data_raw', temp_topic='/imu/tempera
     present, is published on ``temp_topic`` with the same stamp as each Imu message.
 
     :param path: output file (``.mcap``/``.db3``) or bag directory.
-    :param samples: the Samples to write (t in seconds, t >= 0).
+    :param samples: the Samples to write (t in seconds, t >= 0), or an iterable of Samples
+        pieces in time order (written in turn, in bounded memory).
     :param imu_topic: topic of the ``sensor_msgs/msg/Imu`` messages.
     :param temp_topic: topic of the ``sensor_msgs/msg/Temperature`` messages.
     :param frame_id: ``header.frame_id`` of every message.
@@ -989,6 +1016,12 @@ def write_bag(path, samples, imu_topic='/imu/data_raw', temp_topic='/imu/tempera
     """
     target = Path(path)
     storage = _storage_for(target, storage)
+    rest = iter(())
+    if not isinstance(samples, Samples):
+        rest = iter(samples)
+        samples = next(rest, None)
+        if samples is None:
+            raise InputError('no samples: the recording is empty')
     samples.validate()
     if samples.t[0] < 0:
         raise InputError('bag times must not be negative (t starts at '
@@ -1011,7 +1044,8 @@ def write_bag(path, samples, imu_topic='/imu/data_raw', temp_topic='/imu/tempera
         raise InputError(f'{target}: cannot write ({exc.strerror or _one_line(exc)})') from None
     try:
         bagdir = scratch / name
-        _write_bag_dir(bagdir, samples, imu_topic, temp_topic, frame_id, storage)
+        _write_bag_dir(bagdir, _checked_pieces(samples, rest), imu_topic, temp_topic,
+                       frame_id, storage)
         _fsync_tree(bagdir)
         if single_file:
             replace_into(bagdir / f'{name}{_STORAGE_SUFFIX[storage]}', str(target))
