@@ -348,13 +348,14 @@ def _parse_all(f, columns, size_bytes):
     Parse every data line of ``f`` into one (N, len(columns)) array, block by block.
 
     The array is allocated once from the file size and the bytes per row of the first
-    block (grown if that guess falls short), so the peak memory is about the result plus
-    one block, not the several copies a whole-file parse makes.
+    block (grown if that guess falls short), so the peak resident memory is about the
+    result plus one block, not the several copies a whole-file parse makes.
     """
     data, n = None, 0
     for block, nbytes in _parse_chunks(f, columns):
         if data is None:
-            guess = int(size_bytes / max(nbytes / len(block), 1.0) * 1.02) + len(block)
+            # Generous: pages never written are never resident, so over-guessing is free.
+            guess = int(size_bytes / max(nbytes / len(block), 1.0) * 1.25) + len(block)
             data = np.empty((max(guess, len(block)), len(columns)))
         if n + len(block) > len(data):
             grown = np.empty((int((n + len(block)) * 1.25), len(columns)))
@@ -364,7 +365,7 @@ def _parse_all(f, columns, size_bytes):
         n += len(block)
     if data is None:
         return np.empty((0, len(columns)))
-    return data[:n] if n > 0.9 * len(data) else data[:n].copy()
+    return data[:n]
 
 
 def _open_csv(path):
