@@ -140,7 +140,11 @@ def _device_parser():
 
 def _load(args):
     from .dataio.recording import load_samples
-    return load_samples(args.data, imu_topic=args.imu_topic, temp_topic=args.temp_topic)
+    from .progress import Progress
+    size = os.path.getsize(args.data) if os.path.isfile(args.data) else None
+    with Progress(size, 'read', 'B') as bar:     # shown only for a long read on a terminal
+        return load_samples(args.data, imu_topic=args.imu_topic, temp_topic=args.temp_topic,
+                            on_read=bar.update)
 
 
 def _observations(samples, args):

@@ -51,6 +51,7 @@ class Progress:
             self._bar = tqdm(total=self.total, initial=self.done, desc=self.desc,
                              unit=self.unit, unit_scale=True, file=self.stream, leave=False,
                              dynamic_ncols=True)
+            self._bar.start_t -= time.monotonic() - self._start    # time from the start
 
     def close(self):
         """Remove the bar, if one is shown."""

@@ -108,7 +108,7 @@ def _list(items, limit=_MAX_LISTED):
 # Loading
 
 
-def load_samples(path, imu_topic=None, temp_topic=None):
+def load_samples(path, imu_topic=None, temp_topic=None, on_read=None):
     """
     Load a recording as validated ``Samples``.
 
@@ -116,6 +116,7 @@ def load_samples(path, imu_topic=None, temp_topic=None):
     :param imu_topic: bags only: the ``sensor_msgs/msg/Imu`` topic (needed if several).
     :param temp_topic: bags only: the ``sensor_msgs/msg/Temperature`` topic (needed if
         several and none shares the Imu topic's namespace).
+    :param on_read: CSV only: called with the characters read after each block (progress).
     :return: Samples with t, accel and, when recorded, temp and gyro.
     :raises InputError: the path is missing, of an unknown kind or malformed.
     """
@@ -128,7 +129,7 @@ def load_samples(path, imu_topic=None, temp_topic=None):
     if p.is_dir():
         samples = _load_bag(p, imu_topic, temp_topic)
     elif suffix == '.csv':
-        samples = _load_csv(p)
+        samples = _load_csv(p, on_read)
     elif suffix in BAG_SUFFIXES:
         samples = _load_bag(p, imu_topic, temp_topic)
     else:
@@ -343,7 +344,7 @@ def _parse_chunks(f, columns, chunk_rows=CHUNK_ROWS):
             yield block, sum(map(len, lines))
 
 
-def _parse_all(f, columns, size_bytes):
+def _parse_all(f, columns, size_bytes, on_read=None):
     """
     Parse every data line of ``f`` into one (N, len(columns)) array, block by block.
 
@@ -353,6 +354,8 @@ def _parse_all(f, columns, size_bytes):
     """
     data, n = None, 0
     for block, nbytes in _parse_chunks(f, columns):
+        if on_read is not None:
+            on_read(nbytes)
         if data is None:
             # Generous: pages never written are never resident, so over-guessing is free.
             guess = int(size_bytes / max(nbytes / len(block), 1.0) * 1.25) + len(block)
@@ -380,14 +383,15 @@ def _open_csv(path):
     return f, names, header_lineno, layout
 
 
-def _load_csv(path):
+def _load_csv(path, on_read=None):
     """Read the spec CSV into (unvalidated but checked) Samples."""
     try:
         f, names, header_lineno, layout = _open_csv(path)
         with f:
             used = list(layout)
             try:
-                data = _parse_all(f, [layout[n] for n in used], os.fstat(f.fileno()).st_size)
+                data = _parse_all(f, [layout[n] for n in used], os.fstat(f.fileno()).st_size,
+                                  on_read)
                 # Views into the one array: no copies of a big file.
                 columns = _columns(data, used) if data.size else {}
                 lines = None
