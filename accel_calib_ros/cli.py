@@ -14,7 +14,7 @@ import sys
 
 import numpy as np
 
-from .core.calibration import calibrate, Calibration, METHODS
+from .core.calibration import calibrate, METHODS
 from .core.errors import CalibrationError, InputError
 from .core.samples import Samples
 from .core.windows import DEFAULTS, detect_static_windows
@@ -187,7 +187,8 @@ def cmd_fit(args, out):
     extra = {'mode': args.mode, 'samples': len(samples), 'residual_rms_uncalibrated': raw_resid,
              'output': args.output}
     if args.output:
-        cal.save(args.output)
+        from .dataio.calibration_file import save_calibration
+        save_calibration(cal, args.output)
     for problem in cal.physical_problems():
         print(f'accel-calib: warning: {problem} (are the data in m/s²?)', file=sys.stderr)
     summary = _fit_summary(cal, extra)
@@ -222,10 +223,11 @@ def _check_suffix(path, suffixes, what):
 
 
 def cmd_apply(args, out):
+    from .dataio.calibration_file import load_calibration
     from .dataio.recording import csv_writer, iter_samples
     from .progress import Progress
     _check_suffix(args.output, ('.csv',), 'apply -o')
-    cal = Calibration.load(args.calibration)
+    cal = load_calibration(args.calibration)
     is_csv = args.data.lower().endswith('.csv') and os.path.isfile(args.data)
     # Streamed: one piece of the recording in memory at a time, whatever its length.
     with Progress(os.path.getsize(args.data) if is_csv else None, 'apply',

@@ -125,9 +125,9 @@ def test_apply_streams_and_matches_the_whole_file_correction(tmp_path, capsys, m
                         (333,) + recording.iter_samples.__defaults__[1:])
     assert main(['apply', str(calib), str(data), '-o', str(out), '--json']) == 0
     summary = json.loads(capsys.readouterr().out)
-    from accel_calib_ros.core.calibration import Calibration
+    from accel_calib_ros.dataio.calibration_file import load_calibration
     raw = load_samples(data)
-    expect = Calibration.load(calib).correct(raw.accel, raw.temp)
+    expect = load_calibration(calib).correct(raw.accel, raw.temp)
     got = load_samples(out)
     assert summary['samples'] == len(raw) == len(got)
     np.testing.assert_allclose(got.accel, expect, rtol=1e-8, atol=1e-9)
