@@ -17,7 +17,6 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 setup: $(STAMP)
 	@echo 'accel-calib is in $(BIN): ". $(BIN)/activate" puts it on your PATH'
 
-
 # Each step says what it does and pip shows what it fetches (about a minute the first
 # time; later runs skip this while the stamp file is newer than the requirements).
 $(STAMP): setup.py requirements.txt requirements-ros.txt requirements-dev.txt

@@ -39,8 +39,6 @@ import csv
 import itertools
 import os
 from pathlib import Path
-import shutil
-import tempfile
 import warnings
 
 import numpy as np
@@ -1044,6 +1042,7 @@ def write_bag(path, samples, imu_topic='/imu/data_raw', temp_topic='/imu/tempera
         raise InputError(f'{target}: output directory {parent} does not exist')
     name = target.stem if single_file else target.name
     try:
+        import tempfile      # here, not at the top: reading a CSV does not pay for it
         scratch = Path(tempfile.mkdtemp(prefix=f'.{name}.', suffix='.tmp', dir=parent))
     except OSError as exc:
         raise InputError(f'{target}: cannot write ({exc.strerror or _one_line(exc)})') from None
@@ -1060,5 +1059,6 @@ def write_bag(path, samples, imu_topic='/imu/data_raw', temp_topic='/imu/tempera
     except OSError as exc:
         raise InputError(f'{target}: cannot write ({exc.strerror or _one_line(exc)})') from None
     finally:
+        import shutil
         shutil.rmtree(scratch, ignore_errors=True)
     return target
