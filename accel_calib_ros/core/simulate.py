@@ -249,6 +249,7 @@ def iter_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=100.0,
         def temp_at(t):
             return start + (end - start) * t / max((total - 1) * dt, dt)
     up = np.array([0.0, 0.0, gravity])
+    gyro_bias = np.asarray(getattr(sensor, 'gyro_bias', np.zeros(3)), float)  # raw = true + b
     pieces, rows = [], 0
     first = 0
     gyro_world_last = np.zeros(3)
@@ -291,6 +292,7 @@ def iter_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=100.0,
                 gyro_world[-1] = gyro_world[-2] if m > 1 else gyro_world_last
             gyro_world_last = gyro_world[-1]
             gyro = inverse.apply(gyro_world) + rng.standard_normal((m, 3)) * 0.002
+            gyro += gyro_bias
             temp = temp_at(t)
             raw = sensor.measure(true_accel, rng, temp, t)
             pose = np.full(m, -1 if moving else k)
