@@ -7,6 +7,7 @@ diagnostics on stderr; never a traceback for a user mistake.
 """
 
 import argparse
+import itertools
 import json
 import os
 import sys
@@ -139,7 +140,7 @@ def build_parser():
     p.add_argument('--poses', default='24',
                    help='number of random poses, "faces" (six faces) or "sunxu:N" '
                         '(Sun & Xu Euler-angle poses) (default 24)')
-    p.add_argument('--hold', type=_ranged(0.01, 3600.0), default=3.0, help='seconds per pose')
+    p.add_argument('--hold', type=_ranged(0.01, 1e6), default=3.0, help='seconds per pose')
     p.add_argument('--move', type=_ranged(0.01, 3600.0), default=1.5, help='seconds per move')
     p.add_argument('--rate', type=_ranged(1.0, 100000.0), default=100.0,
                    help='sample rate, Hz')
@@ -163,17 +164,25 @@ def build_parser():
     p.add_argument('--json', action='store_true', help='print one JSON object')
     _add_window_args(p)
 
-    p = sub.add_parser('simulate-device',
-                       help='stream MPU9250 serial frames of a virtual sensor on a pty')
-    try:
-        from . import device
-        device.add_arguments(p)
-        p.set_defaults(run_device=device.run)
-    except ImportError as err:      # pragma: no cover - only while device.py is missing
-        p.set_defaults(run_device=None, device_error=str(err))
+    # Its options live in device.py, loaded only when the command runs (see main).
+    sub.add_parser('simulate-device', add_help=False,
+                   help='stream MPU9250 serial frames of a virtual sensor on a pty')
     from . import guide, history_cli
     COMMANDS.update(guide.add_parsers(sub))
     COMMANDS.update(history_cli.add_parsers(sub))
+    return parser
+
+
+def _device_parser():
+    """Return the parser of ``accel-calib simulate-device`` (imports device.py)."""
+    parser = _Parser(prog='accel-calib simulate-device',
+                     description='stream MPU9250 serial frames of a virtual sensor on a pty')
+    try:
+        from . import device
+        device.add_arguments(parser)
+        parser.set_defaults(command='simulate-device', run_device=device.run)
+    except ImportError as err:      # pragma: no cover - only while device.py is missing
+        parser.set_defaults(command='simulate-device', run_device=None, device_error=str(err))
     return parser
 
 
@@ -181,7 +190,11 @@ def build_parser():
 
 def _load(args):
     from .dataio.recording import load_samples
-    return load_samples(args.data, imu_topic=args.imu_topic, temp_topic=args.temp_topic)
+    from .progress import Progress
+    size = os.path.getsize(args.data) if os.path.isfile(args.data) else None
+    with Progress(size, 'read', 'B') as bar:     # shown only for a long read on a terminal
+        return load_samples(args.data, imu_topic=args.imu_topic, temp_topic=args.temp_topic,
+                            on_read=bar.update)
 
 
 def _same_file(a, b):
@@ -405,57 +418,82 @@ def cmd_fit(args, out):
     return 0
 
 
+def _check_suffix(path, suffixes, what):
+    """Refuse an output name whose suffix says no format this command writes (exit 2)."""
+    if not path.lower().endswith(suffixes):
+        names = ' or '.join(suffixes)
+        raise UsageError(f'accel-calib: error: {what} {path}: the name must end in {names} '
+                         '(the suffix picks the file format)')
+
+
 def cmd_apply(args, out):
-    from .dataio.recording import write_samples_csv
     _check_output(args.output, args.calibration, args.data)
     from .dataio.calibration_file import load_calibration
+    from .dataio.recording import csv_writer, iter_samples
+    from .progress import Progress
+    _check_suffix(args.output, ('.csv',), 'apply -o')
     cal = load_calibration(args.calibration)
-    samples = _load(args)
-    if cal.thermal is not None and cal.thermal.usable and samples.temp is None:
-        print('accel-calib: warning: calibration has temperature tables but the data have '
-              'no temperature; applying without drift correction', file=sys.stderr)
-    outside = 0
-    if cal.temperature_range_c is not None and samples.temp is not None:
+    is_csv = args.data.lower().endswith('.csv') and os.path.isfile(args.data)
+    # Streamed: one piece of the recording in memory at a time, whatever its length.
+    with Progress(os.path.getsize(args.data) if is_csv else None, 'apply',
+                  'B' if is_csv else 'rows') as bar:
+        pieces = iter_samples(args.data, imu_topic=args.imu_topic, temp_topic=args.temp_topic,
+                              on_read=bar.update if is_csv else None)
+        first = next(pieces)
+        if cal.thermal is not None and cal.thermal.usable and first.temp is None:
+            print('accel-calib: warning: calibration has temperature tables but the data '
+                  'have no temperature; applying without drift correction', file=sys.stderr)
+        n, outside, sum_before, sum_after = 0, 0, 0.0, 0.0
+        gyro_subtracted = first.gyro is not None and cal.gyro_bias is not None
+        with csv_writer(args.output, first.temp is not None, first.gyro is not None) as w:
+            for samples in itertools.chain([first], pieces):
+                if cal.temperature_range_c is not None and samples.temp is not None:
+                    lo, hi = cal.temperature_range_c
+                    outside += int(np.sum((samples.temp < lo - 1.0) | (samples.temp > hi + 1.0)))
+                with np.errstate(all='ignore'):
+                    corrected = cal.correct(samples.accel, samples.temp)
+                    gyro = samples.gyro
+                    if gyro is not None:
+                        gyro = cal.correct_gyro(gyro, samples.temp)
+                bad = ~np.all(np.isfinite(corrected), axis=1)
+                if gyro is not None:
+                    bad |= ~np.all(np.isfinite(gyro), axis=1)
+                if bad.any():       # the atomic writer removes what was written so far
+                    raise InputError(
+                        f'{int(bad.sum())} rows would be non-finite after correction (first '
+                        f't={samples.t[np.argmax(bad)]:.3f} s): the data or the calibration '
+                        'are out of range; nothing written')
+                w.write(Samples(samples.t, corrected, samples.temp, gyro))
+                n += len(samples)
+                sum_before += float(np.linalg.norm(samples.accel, axis=1).sum())
+                sum_after += float(np.linalg.norm(corrected, axis=1).sum())
+                if not is_csv:
+                    bar.update(len(samples))
+    if outside:
         lo, hi = cal.temperature_range_c
-        outside = int(np.sum((samples.temp < lo - 1.0) | (samples.temp > hi + 1.0)))
-        if outside:
-            print(f'accel-calib: warning: {outside} samples lie outside the calibrated '
-                  f'temperature range {lo:.1f} .. {hi:.1f} °C', file=sys.stderr)
-    with np.errstate(all='ignore'):
-        corrected = cal.correct(samples.accel, samples.temp)
-        gyro = samples.gyro
-        if gyro is not None:
-            gyro = cal.correct_gyro(gyro, samples.temp)
-    bad = ~np.all(np.isfinite(corrected), axis=1)
-    if gyro is not None:
-        bad |= ~np.all(np.isfinite(gyro), axis=1)
-    if bad.any():
-        raise InputError(f'{int(bad.sum())} rows would be non-finite after correction (first '
-                         f't={samples.t[np.argmax(bad)]:.3f} s): the data or the calibration '
-                         'are out of range; nothing written')
-    write_samples_csv(args.output, Samples(samples.t, corrected, samples.temp, gyro))
-    norm_before = np.linalg.norm(samples.accel, axis=1)
-    norm_after = np.linalg.norm(corrected, axis=1)
-    summary = {'output': args.output, 'samples': len(samples), 'calibration': args.calibration,
-               'mean_norm_before': float(norm_before.mean()),
-               'mean_norm_after': float(norm_after.mean()),
-               'gyro_bias_subtracted': gyro is not None and cal.gyro_bias is not None,
+        print(f'accel-calib: warning: {outside} samples lie outside the calibrated '
+              f'temperature range {lo:.1f} .. {hi:.1f} °C', file=sys.stderr)
+    summary = {'output': args.output, 'samples': n, 'calibration': args.calibration,
+               'mean_norm_before': sum_before / n, 'mean_norm_after': sum_after / n,
+               'gyro_bias_subtracted': gyro_subtracted,
                'samples_outside_temperature_range': outside}
     if args.json:
         out(summary)
     else:
-        print(f'corrected {len(samples)} samples -> {args.output} '
-              f'(mean |a| {norm_before.mean():.4f} -> {norm_after.mean():.4f} m/s²'
-              + (', gyro bias subtracted' if summary['gyro_bias_subtracted'] else '') + ')')
+        print(f'corrected {n} samples -> {args.output} '
+              f'(mean |a| {sum_before / n:.4f} -> {sum_after / n:.4f} m/s²'
+              + (', gyro bias subtracted' if gyro_subtracted else '') + ')')
     return 0
 
 
 def cmd_simulate(args, out):
     from .core import simulate as sim
     from .dataio.recording import write_bag, write_samples_csv
+    from .progress import Progress
     _check_output(args.truth, args.output, what='--truth')
     if args.output and os.path.isdir(os.path.expanduser(args.output)):
         raise UsageError(f'accel-calib: output {args.output} is a directory')
+    _check_suffix(args.output, ('.csv', '.mcap', '.db3'), 'simulate -o')
     rng = np.random.default_rng(args.seed)
     effects = [e.strip() for e in args.effects.split(',') if e.strip()]
     known = ('scale_nonlinearity', 'temperature_bias', 'temperature_scale', 'bias_drift',
@@ -488,25 +526,34 @@ def cmd_simulate(args, out):
                          f'limit is {MAX_SIMULATED_SAMPLES:.3g} (fewer poses, shorter holds '
                          'or a lower --rate)')
     temperature = args.temp[0] if len(args.temp) == 1 else tuple(args.temp)
-    session = sim.simulate_session(sensor, directions, rng, hold_s=args.hold, move_s=args.move,
-                                   rate_hz=args.rate, gravity=args.gravity,
-                                   temperature=temperature)
-    if args.output.endswith(('.mcap', '.db3')):
-        write_bag(args.output, session.samples)
-    else:
-        write_samples_csv(args.output, session.samples)
+    kwargs = {'hold_s': args.hold, 'move_s': args.move, 'rate_hz': args.rate}
+    total = sim.session_length(directions, **kwargs)
+    last_t = []
+
+    def pieces(bar):        # streamed: one piece of the session in memory at a time
+        for piece in sim.iter_session(sensor, directions, rng, gravity=args.gravity,
+                                      temperature=temperature, **kwargs):
+            bar.update(len(piece.samples))
+            last_t[:] = [float(piece.samples.t[-1])]
+            yield piece.samples
+
+    with Progress(total, 'simulate') as bar:
+        if args.output.lower().endswith(('.mcap', '.db3')):
+            write_bag(args.output, pieces(bar))
+        else:
+            write_samples_csv(args.output, pieces(bar))
     truth = sensor_to_dict(sensor, args.gravity)
     if args.truth:
         import yaml
         from .dataio.atomic import atomic_write_text
         atomic_write_text(args.truth, yaml.safe_dump(truth, sort_keys=False))
-    summary = {'output': args.output, 'samples': len(session.samples), 'poses': len(directions),
-               'seconds': float(session.samples.t[-1]), 'truth': truth}
+    summary = {'output': args.output, 'samples': total, 'poses': len(directions),
+               'seconds': last_t[0], 'truth': truth}
     if args.json:
         out(summary)
     else:
-        print(f'simulated {len(directions)} poses, {len(session.samples)} samples '
-              f'({session.samples.t[-1]:.1f} s) -> {args.output}')
+        print(f'simulated {len(directions)} poses, {total} samples '
+              f'({last_t[0]:.1f} s) -> {args.output}')
     return 0
 
 
@@ -562,7 +609,7 @@ def _check_device_args(args):
 
     finite('seed', 0, 2 ** 32 - 1)
     finite('rate', 1.0, 100000.0)
-    finite('hold', 0.01, 3600.0)
+    finite('hold', 0.01, 1e6)
     finite('move', 0.01, 3600.0)
     finite('temp', -100.0, 200.0)
     finite('temp_ramp', -100.0, 200.0)
@@ -605,7 +652,11 @@ def main(argv=None):
         print(json.dumps(_plain(obj), allow_nan=False))
 
     try:
-        args = build_parser().parse_args(argv)
+        argv = sys.argv[1:] if argv is None else list(argv)
+        if argv[:1] == ['simulate-device']:
+            args = _device_parser().parse_args(argv[1:])
+        else:
+            args = build_parser().parse_args(argv)
         return COMMANDS[args.command](args, out)
     except UsageError as err:
         print(f'{err}', file=sys.stderr)
@@ -617,6 +668,7 @@ def main(argv=None):
         print(f'accel-calib: cannot calibrate: {err}', file=sys.stderr)
         return 1
     except KeyboardInterrupt:
+        print('accel-calib: interrupted (partial output removed)', file=sys.stderr)
         return 130
     except BrokenPipeError:
         return 0

@@ -20,13 +20,13 @@ import tty
 
 import numpy as np
 
-from .core.simulate import (face_directions, G0, mpu9250_like, random_directions,
-                            simulate_session)
 from .dataio.mpu9250_frame import (ACCEL_LSB_PER_G, Converter, encode_ascii_line, encode_frame,
                                    FRAME_SIZE, GYRO_LSB_PER_DPS)
 
 CHUNK_S = 10.0
 """Seconds of samples simulated at a time once the script has ended."""
+G0 = 9.80665
+"""Standard gravity, m/s² (the simulator's; core.simulate, which needs scipy, loads lazily)."""
 EFFECTS = ('scale_nonlinearity', 'temperature_bias', 'temperature_scale', 'bias_drift')
 
 
@@ -115,6 +115,7 @@ def add_arguments(parser):
 
 
 def _directions(args, rng):
+    from .core.simulate import face_directions, random_directions
     if args.poses == 'faces':
         faces = face_directions()
         count = args.count or 6
@@ -158,6 +159,7 @@ class VirtualSensor:
     """
 
     def __init__(self, args):
+        from .core.simulate import mpu9250_like
         self.rng = np.random.default_rng(args.seed)
         effects = [e for e in args.effects.split(',') if e]
         for name in effects:
@@ -168,7 +170,8 @@ class VirtualSensor:
         self.directions = _directions(args, self.rng)
         self.converter = Converter(args.accel_range, args.gyro_range)
         self.t_offset = 0.0
-        self.script_s = None
+        self._stream = None
+        self._played = False
         self._queue = []
 
     def truth(self):
@@ -188,14 +191,31 @@ class VirtualSensor:
                 'temperature_c': list(a.temp_ramp) if a.temp_ramp else float(a.temp)}
 
     def _script(self):
+        """Return the scripted session as a generator of (n, 7) count blocks."""
+        from .core.simulate import iter_session
         a = self.args
         temperature = tuple(a.temp_ramp) if a.temp_ramp else a.temp
-        session = simulate_session(self.sensor, self.directions, self.rng, hold_s=a.hold,
-                                   move_s=a.move, rate_hz=a.rate, gravity=a.gravity,
-                                   temperature=temperature)
-        s = session.samples
-        self.script_s = len(s) / a.rate
-        return self.converter.to_counts_array(s.accel, s.temp, s.gyro)
+        # In pieces of CHUNK_S: a long --hold never builds the whole session in memory
+        # and a stop request is seen between pieces.
+        for piece in iter_session(self.sensor, self.directions, self.rng, hold_s=a.hold,
+                                  move_s=a.move, rate_hz=a.rate, gravity=a.gravity,
+                                  temperature=temperature,
+                                  chunk_rows=max(int(CHUNK_S * a.rate), 1)):
+            s = piece.samples
+            yield self.converter.to_counts_array(s.accel, s.temp, s.gyro)
+
+    def _next_block(self, t_next):
+        """Return the next block of counts: the script, then the last pose held (or again)."""
+        while True:
+            if self._stream is None and (not self._played or self.args.loop):
+                self._stream = self._script()
+                self._played = True
+            if self._stream is None:
+                return self._hold(t_next)
+            block = next(self._stream, None)
+            if block is not None:
+                return block
+            self._stream = None
 
     def _hold(self, t_start):
         a = self.args
@@ -216,10 +236,7 @@ class VirtualSensor:
         parts, have = [], 0
         while have < n:
             if not self._queue:
-                if self.script_s is None or self.args.loop:
-                    self._queue.append(self._script())
-                else:
-                    self._queue.append(self._hold(t_next + have / self.args.rate))
+                self._queue.append(self._next_block(t_next + have / self.args.rate))
             block = self._queue[0]
             take = min(n - have, len(block))
             parts.append(block[:take])

@@ -48,23 +48,23 @@ def test_serial_source_reads_spec_frames_from_a_port():
     master, slave = os.openpty()
     try:
         source = SerialSource(os.ttyname(slave), 1000000)
-        counts = [(0, 0, 16384, 333, 131, 0, -131), (16384, 0, 0, -333, 0, 0, 0)]
-        data = b''.join(encode_frame(k, 1000 + 5000 * k, c) for k, c in enumerate(counts))
-        os.write(master, b'\x00\xa5' + data[:30] + b'\xff' + data[30:])   # noise, a bad byte
-        os.write(master, data)
+        counts = [(0, 0, 16384, 333, 131, 0, -131)] * 7 + [(16384, 0, 0, -333, 0, 0, 0)]
+        data = b''.join(encode_frame(k, 1000 + 1000 * k, c) for k, c in enumerate(counts))
+        bad = 2 * 22 + 9                                         # a data byte of frame 2
+        os.write(master, b'\x00\xa5' + data[:bad] + bytes([data[bad] ^ 0xff]) + data[bad + 1:])
         got = [np.zeros(0), np.zeros((0, 3)), np.zeros(0)]
         for _ in range(50):
             t, a, temp = source.read(None)
             got = [np.concatenate([got[0], t]), np.vstack([got[1], a]),
                    np.concatenate([got[2], temp])]
-            if len(got[0]) >= 3:
+            if len(got[0]) >= 6:
                 break
         source.close()
     finally:
         os.close(master)
         os.close(slave)
     t, a, temp = got
-    assert len(t) >= 3
+    assert len(t) >= 6                       # the damaged frame (and its neighbour) dropped
     np.testing.assert_allclose(a[-1], [9.80665, 0, 0], atol=1e-9)
     np.testing.assert_allclose(temp[-1], 21.0 - 333 / 333.87, atol=1e-9)
     assert np.all(np.diff(t) >= 0)

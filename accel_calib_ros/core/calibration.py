@@ -47,12 +47,10 @@ def check_geometry(readings, method):
         raise CalibrationError(
             f'{n} static observations; method {method} needs at least {need_obs} '
             f'in {need_dirs} distinct orientations: hold more poses')
-    # Directions of the raw readings themselves: the bias is small next to gravity, and
-    # centring on the data (as an ellipsoid fit would) turns the noise cloud of a single
-    # pose into "many directions".
-    dirs = distinct_directions(readings, 15.0, limit=need_dirs)
+    centred = readings - _direction_centre(readings)
+    dirs = distinct_directions(centred, 15.0, limit=need_dirs)
     if dirs < need_dirs:
-        missing = missing_faces(readings)
+        missing = missing_faces(centred)
         raise CalibrationError(
             f'only {dirs} distinct orientations among {n} observations; method {method} '
             f'needs {need_dirs}: '
@@ -64,6 +62,25 @@ def check_geometry(readings, method):
                            compute_uv=False)
     if spread[-1] < 1e-3 * spread[0]:
         raise CalibrationError('all orientations lie in one plane: tilt the sensor out of it')
+
+
+def _direction_centre(readings):
+    """
+    Return the point (3,) from which the readings' directions are taken.
+
+    Static readings lie on the gravity ellipsoid around the bias: of the origin (readings in
+    physical units, small bias) and the mid-range (raw counts with an offset, e.g. unsigned
+    ADC codes), the one from which the readings are most nearly equidistant. The noise
+    cloud of a single pose is not equidistant from its own mid-range, so it stays one
+    direction.
+    """
+    best, best_cv = np.zeros(3), np.inf
+    for centre in (np.zeros(3), (readings.max(axis=0) + readings.min(axis=0)) / 2.0):
+        norm = np.linalg.norm(readings - centre, axis=1)
+        cv = np.std(norm) / max(np.mean(norm), 1e-300)
+        if cv < best_cv:
+            best, best_cv = centre, cv
+    return best
 
 
 def missing_faces(readings, within_deg=50.0):

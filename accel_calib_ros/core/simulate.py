@@ -15,6 +15,7 @@ effects can be switched on one at a time (the model-gap workflow relies on it).
 """
 
 from dataclasses import dataclass, field, replace
+import warnings
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
@@ -171,8 +172,21 @@ def sun_xu_directions(n, rng, amplitude_deg=(120.0, 120.0, 80.0)):
 def _rotation_to(direction):
     """Rotation R (body to world) with R^T e_z = direction, for each row."""
     d = np.atleast_2d(direction)
-    rots, _ = zip(*[Rotation.align_vectors([[0.0, 0.0, 1.0]], [row]) for row in d])
+    rots, _ = zip(*[_align_z(row) for row in d])
     return Rotation.concatenate(rots)
+
+
+def _align_z(direction):
+    """Return ``Rotation.align_vectors`` of e_z onto one direction, quietly (one pair)."""
+    with warnings.catch_warnings():
+        # scipy < 1.12 warns that one vector pair leaves the rotation about it undefined:
+        # any such rotation serves here (the pose is defined by its gravity direction).
+        warnings.simplefilter('ignore', UserWarning)
+        return Rotation.align_vectors([[0.0, 0.0, 1.0]], [direction])
+
+
+CHUNK_ROWS = 1 << 16
+"""Rows generated at a time by ``iter_session`` (bounds its memory; fixes its draws)."""
 
 
 @dataclass
@@ -191,10 +205,126 @@ class Session:
     gravity: float
 
 
+def _segments(n_pose, holds, move_s, rate_hz):
+    """Return the session script: (pose index, move?, samples) per segment, in order."""
+    out = []
+    for k in range(n_pose):
+        if k > 0:
+            out.append((k, True, max(int(round(move_s * rate_hz)), 2)))
+        out.append((k, False, max(int(round(holds[k] * rate_hz)), 1)))
+    return out
+
+
+def session_length(directions, hold_s=3.0, move_s=1.5, rate_hz=100.0):
+    """Return the number of samples ``simulate_session`` gives for these arguments."""
+    n_pose = len(np.asarray(directions, float).reshape(-1, 3))
+    holds = np.broadcast_to(np.asarray(hold_s, float), (n_pose,))
+    return sum(n for _, _, n in _segments(n_pose, holds, move_s, rate_hz))
+
+
+def iter_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=100.0,
+                 gravity=G0, temperature=25.0, motion_accel=1.5, lead_s=None,
+                 chunk_rows=CHUNK_ROWS):
+    """
+    Simulate a session piece by piece, in bounded memory (see ``simulate_session``).
+
+    Same arguments as ``simulate_session``. Yields ``Session`` objects of at most
+    about ``chunk_rows`` samples each, in time order; their concatenation is the
+    session ``simulate_session`` returns for the same random generator state. The
+    draws do not depend on ``chunk_rows`` (only on the fixed ``CHUNK_ROWS``).
+
+    :returns: generator of Session.
+    """
+    directions = np.asarray(directions, float).reshape(-1, 3)
+    directions = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    n_pose = len(directions)
+    holds = np.broadcast_to(np.asarray(hold_s, float), (n_pose,))
+    dt = 1.0 / rate_hz
+    rots = _rotation_to(directions)
+    segments = _segments(n_pose, holds, move_s, rate_hz)
+    total = sum(n for _, _, n in segments)
+    if callable(temperature):
+        def temp_at(t):
+            return np.asarray(temperature(t), float) * np.ones(len(t))
+    elif np.ndim(temperature) == 0:
+        def temp_at(t):
+            return np.full(len(t), float(temperature))
+    else:
+        start, end = temperature
+
+        def temp_at(t):
+            return start + (end - start) * t / max((total - 1) * dt, dt)
+    up = np.array([0.0, 0.0, gravity])
+    gyro_bias = np.asarray(getattr(sensor, 'gyro_bias', np.zeros(3)), float)  # raw = true + b
+    pieces, rows = [], 0
+    first = 0
+    gyro_world_last = np.zeros(3)
+    for index, (k, moving, n) in enumerate(segments):
+        if moving:
+            s = (np.arange(n) + 1) / (n + 1)
+            slerp = Slerp([0.0, 1.0], Rotation.concatenate([rots[k - 1], rots[k]]))
+            axis = rng.standard_normal(3)
+            axis = motion_accel * axis / np.linalg.norm(axis)
+        for a in range(0, n, CHUNK_ROWS):
+            b = min(a + CHUNK_ROWS, n)
+            m = b - a
+            t = (first + np.arange(a, b)) * dt
+            if b < n:
+                after = slerp(s[b]) if moving else None
+            elif index + 1 < len(segments):     # the first rotation of the next segment
+                k_next, move_next, n_next = segments[index + 1]
+                after = rots[k_next]
+                if move_next:
+                    pair = Rotation.concatenate([rots[k_next - 1], rots[k_next]])
+                    after = Slerp([0.0, 1.0], pair)(1.0 / (n_next + 1))
+            else:
+                after = None
+            gyro_world = np.zeros((m, 3))
+            if moving:
+                rot = slerp(s[a:b])
+                inverse = rot.inv()
+                world = up + np.sin(np.pi * s[a:b])[:, None] * axis
+                true_accel = inverse.apply(world)
+                if m > 1:
+                    gyro_world[:-1] = (rot[1:] * inverse[:-1]).as_rotvec() / dt
+                last = rot[-1]
+            else:                               # held still: one rotation, no turn rate
+                inverse = rots[k].inv()
+                true_accel = np.tile(inverse.apply(up), (m, 1))
+                last = rots[k]
+            if after is not None:
+                gyro_world[-1] = (after * last.inv()).as_rotvec() / dt
+            elif b == n and index + 1 == len(segments):  # the very last sample
+                gyro_world[-1] = gyro_world[-2] if m > 1 else gyro_world_last
+            gyro_world_last = gyro_world[-1]
+            gyro = inverse.apply(gyro_world) + rng.standard_normal((m, 3)) * 0.002
+            gyro += gyro_bias
+            temp = temp_at(t)
+            raw = sensor.measure(true_accel, rng, temp, t)
+            pose = np.full(m, -1 if moving else k)
+            pieces.append((t, raw, temp, gyro, true_accel, pose))
+            rows += m
+            if rows >= chunk_rows:
+                yield _join(pieces, directions, sensor, gravity)
+                pieces, rows = [], 0
+        first += n
+    if pieces:
+        yield _join(pieces, directions, sensor, gravity)
+
+
+def _join(pieces, directions, sensor, gravity):
+    """Concatenate (t, raw, temp, gyro, true_accel, pose) pieces into one Session."""
+    t, raw, temp, gyro, true_accel, pose = (
+        np.concatenate(column) if len(pieces) > 1 else column[0] for column in zip(*pieces))
+    return Session(Samples(t, raw, temp, gyro), true_accel, pose, directions, sensor, gravity)
+
+
 def simulate_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=100.0,
                      gravity=G0, temperature=25.0, motion_accel=1.5, lead_s=None):
     """
     Simulate someone turning the sensor through a sequence of held poses.
+
+    The whole session in memory; ``iter_session`` gives the same in pieces.
 
     :param sensor: SensorModel that produces the raw readings.
     :param directions: (P, 3) unit gravity directions in the body frame, one per pose.
@@ -209,54 +339,9 @@ def simulate_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=10
     :param lead_s: still time before the first pose is reached (default ``hold_s``).
     :returns: Session.
     """
-    directions = np.asarray(directions, float).reshape(-1, 3)
-    directions = directions / np.linalg.norm(directions, axis=1, keepdims=True)
-    n_pose = len(directions)
-    holds = np.broadcast_to(np.asarray(hold_s, float), (n_pose,))
-    dt = 1.0 / rate_hz
-    rots = _rotation_to(directions)
-
-    segments_t, segments_rot, segments_pose, segments_motion = [], [], [], []
-    t0 = 0.0
-    for k in range(n_pose):
-        if k > 0:
-            n_move = max(int(round(move_s * rate_hz)), 2)
-            s = (np.arange(n_move) + 1) / (n_move + 1)
-            pair = Rotation.concatenate([rots[k - 1], rots[k]])
-            segments_rot.append(Slerp([0.0, 1.0], pair)(s))
-            segments_t.append(t0 + np.arange(n_move) * dt)
-            segments_pose.append(np.full(n_move, -1))
-            axis = rng.standard_normal(3)
-            bump = np.sin(np.pi * s)[:, None] * motion_accel * axis / np.linalg.norm(axis)
-            segments_motion.append(bump)
-            t0 += n_move * dt
-        n_hold = max(int(round(holds[k] * rate_hz)), 1)
-        segments_rot.append(Rotation.concatenate([rots[k]] * n_hold))
-        segments_t.append(t0 + np.arange(n_hold) * dt)
-        segments_pose.append(np.full(n_hold, k))
-        segments_motion.append(np.zeros((n_hold, 3)))
-        t0 += n_hold * dt
-
-    t = np.concatenate(segments_t)
-    rot = Rotation.concatenate(segments_rot)
-    pose = np.concatenate(segments_pose)
-    motion_world = np.concatenate(segments_motion)
-    true_accel = rot.inv().apply(np.array([0.0, 0.0, gravity]) + motion_world)
-
-    rotvec = (rot[1:] * rot[:-1].inv()).as_rotvec() / dt
-    gyro_world = np.vstack([rotvec, rotvec[-1:]])
-    gyro = rot.inv().apply(gyro_world) + rng.standard_normal((len(t), 3)) * 0.002
-    gyro = gyro + np.asarray(getattr(sensor, 'gyro_bias', np.zeros(3)), float)
-
-    if callable(temperature):
-        temp = np.asarray(temperature(t), float) * np.ones(len(t))
-    elif np.ndim(temperature) == 0:
-        temp = np.full(len(t), float(temperature))
-    else:
-        start, end = temperature
-        temp = start + (end - start) * (t - t[0]) / max(t[-1] - t[0], dt)
-    raw = sensor.measure(true_accel, rng, temp, t)
-    return Session(Samples(t, raw, temp, gyro), true_accel, pose, directions, sensor, gravity)
+    parts = list(iter_session(sensor, directions, rng, hold_s, move_s, rate_hz, gravity,
+                              temperature, motion_accel, lead_s, chunk_rows=1 << 62))
+    return parts[0]
 
 
 def simulate_window_means(sensor, directions, n_samples, rng, gravity=G0, temp=None, t=None):

@@ -85,10 +85,29 @@ class StaticWindows:
         return w
 
 
-def _moving_std(x, n):
-    """Centred moving standard deviation over ``n`` samples, shape like ``x`` (N, k)."""
+def _moving_std(x, n, block=1 << 18):
+    """
+    Centred moving standard deviation over ``n`` samples, shape (N,) for ``x`` (N, k).
+
+    Computed ``block`` rows at a time (each with its ``n`` neighbours), so a long
+    recording needs a few blocks of scratch memory, not several copies of itself.
+    """
     n = max(int(n), 2)
-    pad = np.pad(x - x.mean(axis=0), ((n // 2, n - n // 2 - 1), (0, 0)), mode='edge')
+    if len(x) <= block:
+        return _moving_std_block(x - x.mean(axis=0), n)
+    mean = x.mean(axis=0)
+    out = np.empty(len(x))
+    before, after = n // 2, n - n // 2 - 1
+    for a in range(0, len(x), block):
+        b = min(a + block, len(x))
+        rows = np.clip(np.arange(a - before, b + after), 0, len(x) - 1)  # edge padding
+        out[a:b] = _moving_std_block(x[rows] - mean, n, padded=True)
+    return out
+
+
+def _moving_std_block(x, n, padded=False):
+    """Return the moving std of ``x`` (rows already padded by n - 1 when ``padded``)."""
+    pad = x if padded else np.pad(x, ((n // 2, n - n // 2 - 1), (0, 0)), mode='edge')
     c1 = np.cumsum(np.vstack([np.zeros((1, x.shape[1])), pad]), axis=0)
     c2 = np.cumsum(np.vstack([np.zeros((1, x.shape[1])), pad ** 2]), axis=0)
     s1 = c1[n:] - c1[:-n]
@@ -223,8 +242,8 @@ def windows_from_ranges(samples, starts, stops, noise_floor=float('nan')):
     starts = np.asarray(starts, dtype=int)
     stops = np.asarray(stops, dtype=int)
     count = stops - starts
-    csum = np.vstack([np.zeros((1, 3)), np.cumsum(samples.accel, axis=0)])
-    mean = (csum[stops] - csum[starts]) / np.maximum(count, 1)[:, None]
+    mean = np.array([samples.accel[a:b].mean(axis=0) if b > a else np.zeros(3)
+                     for a, b in zip(starts, stops)]).reshape(-1, 3)  # no (N, 3) scratch
     scatter = np.array([samples.accel[a:b].std(axis=0, ddof=1) if b - a > 1 else np.zeros(3)
                         for a, b in zip(starts, stops)]).reshape(-1, 3)
     t_mid = 0.5 * (samples.t[starts] + samples.t[np.maximum(stops - 1, starts)]) \

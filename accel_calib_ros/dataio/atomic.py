@@ -14,7 +14,6 @@ symbolic link at the target is followed, so the link stays and its target is rep
 
 import contextlib
 import os
-import secrets
 import stat
 
 __all__ = ['atomic_path', 'atomic_write_bytes', 'atomic_write_text']
@@ -41,7 +40,7 @@ def _create_temp(target):
     directory, name = os.path.split(target)
     stem, suffix = os.path.splitext(name)
     for _ in range(100):
-        tmp = os.path.join(directory, f'.{stem}.{secrets.token_hex(4)}.tmp{suffix}')
+        tmp = os.path.join(directory, f'.{stem}.{os.urandom(4).hex()}.tmp{suffix}')
         try:
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         except FileExistsError:

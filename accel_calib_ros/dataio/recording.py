@@ -34,11 +34,11 @@ Every malformed input raises ``InputError`` with a one-line message that says wh
 wrong and where (file, line, topic), so the CLI can print it and exit with status 2.
 """
 
+import contextlib
 import csv
+import itertools
 import os
 from pathlib import Path
-import shutil
-import tempfile
 import warnings
 
 import numpy as np
@@ -47,7 +47,7 @@ from .atomic import atomic_path, fsync_directory, replace_into
 from ..core.errors import InputError
 from ..core.samples import Samples
 
-__all__ = ['load_samples', 'write_bag', 'write_samples_csv']
+__all__ = ['csv_writer', 'iter_samples', 'load_samples', 'write_bag', 'write_samples_csv']
 
 IMU_TYPE = 'sensor_msgs/msg/Imu'
 TEMP_TYPE = 'sensor_msgs/msg/Temperature'
@@ -111,7 +111,7 @@ def _list(items, limit=_MAX_LISTED):
 # Loading
 
 
-def load_samples(path, imu_topic=None, temp_topic=None):
+def load_samples(path, imu_topic=None, temp_topic=None, on_read=None):
     """
     Load a recording as validated ``Samples``.
 
@@ -119,6 +119,7 @@ def load_samples(path, imu_topic=None, temp_topic=None):
     :param imu_topic: bags only: the ``sensor_msgs/msg/Imu`` topic (needed if several).
     :param temp_topic: bags only: the ``sensor_msgs/msg/Temperature`` topic (needed if
         several and none shares the Imu topic's namespace).
+    :param on_read: CSV only: called with the characters read after each block (progress).
     :return: Samples with t, accel and, when recorded, temp and gyro.
     :raises InputError: the path is missing, of an unknown kind or malformed.
     """
@@ -131,7 +132,7 @@ def load_samples(path, imu_topic=None, temp_topic=None):
     if p.is_dir():
         samples = _load_bag(p, imu_topic, temp_topic)
     elif suffix == '.csv':
-        samples = _load_csv(p)
+        samples = _load_csv(p, on_read)
     elif suffix in BAG_SUFFIXES:
         samples = _load_bag(p, imu_topic, temp_topic)
     else:
@@ -248,6 +249,22 @@ def _data_lines(path, header_lineno, rows):
     return [out.get(int(r), int(r) + header_lineno + 1) for r in rows]
 
 
+def _columns(data, used):
+    """
+    Name the columns of a parsed block: views, no copies.
+
+    Besides one (N,) view per column, ``accel`` (and ``gyro``) are (N, 3) views of the
+    three side-by-side columns (the reader parses them in STANDARD_COLUMNS order).
+    """
+    out = {n: data[:, i] for i, n in enumerate(used)}
+    for key, names in (('accel', ('ax', 'ay', 'az')), ('gyro', GYRO_COLUMNS)):
+        if all(n in used for n in names):
+            i = used.index(names[0])
+            if used[i:i + 3] == list(names):
+                out[key] = data[:, i:i + 3]
+    return out
+
+
 def _parse_fast(f, columns):
     """Parse the selected columns with numpy's C reader; raises ValueError on any bad cell."""
     with warnings.catch_warnings():
@@ -315,16 +332,71 @@ def _parse_careful(path, header_lineno, layout, names):
     return out, np.asarray(lines)
 
 
-def _load_csv(path):
+CHUNK_ROWS = 1 << 17
+"""CSV rows parsed at a time: reading holds one such block beyond the result."""
+
+
+def _parse_chunks(f, columns, chunk_rows=CHUNK_ROWS):
+    """Yield blocks (rows, len(columns)) of the CSV data lines of ``f``, parsed by numpy."""
+    while True:
+        lines = list(itertools.islice(f, chunk_rows))
+        if not lines:
+            return
+        block = _parse_fast(lines, columns)
+        if block.size:
+            yield block, sum(map(len, lines))
+
+
+def _parse_all(f, columns, size_bytes, on_read=None):
+    """
+    Parse every data line of ``f`` into one (N, len(columns)) array, block by block.
+
+    The array is allocated once from the file size and the bytes per row of the first
+    block (grown if that guess falls short), so the peak resident memory is about the
+    result plus one block, not the several copies a whole-file parse makes.
+    """
+    data, n = None, 0
+    for block, nbytes in _parse_chunks(f, columns):
+        if on_read is not None:
+            on_read(nbytes)
+        if data is None:
+            # Generous: pages never written are never resident, so over-guessing is free.
+            guess = int(size_bytes / max(nbytes / len(block), 1.0) * 1.25) + len(block)
+            data = np.empty((max(guess, len(block)), len(columns)))
+        if n + len(block) > len(data):
+            grown = np.empty((int((n + len(block)) * 1.25), len(columns)))
+            grown[:n] = data[:n]
+            data = grown
+        data[n:n + len(block)] = block
+        n += len(block)
+    if data is None:
+        return np.empty((0, len(columns)))
+    return data[:n]
+
+
+def _open_csv(path):
+    """Open the CSV, read its header; return (file, names, header line number, layout)."""
+    f = _open_text(path)
+    try:
+        names, header_lineno = _read_header(f, path)
+        layout = _column_layout(names, path)
+    except BaseException:
+        f.close()
+        raise
+    return f, names, header_lineno, layout
+
+
+def _load_csv(path, on_read=None):
     """Read the spec CSV into (unvalidated but checked) Samples."""
     try:
-        with _open_text(path) as f:
-            names, header_lineno = _read_header(f, path)
-            layout = _column_layout(names, path)
+        f, names, header_lineno, layout = _open_csv(path)
+        with f:
             used = list(layout)
             try:
-                data = _parse_fast(f, [layout[n] for n in used])
-                columns = {n: data[:, i] for i, n in enumerate(used)} if data.size else {}
+                data = _parse_all(f, [layout[n] for n in used], os.fstat(f.fileno()).st_size,
+                                  on_read)
+                # Views into the one array: no copies of a big file.
+                columns = _columns(data, used) if data.size else {}
                 lines = None
             except ValueError:
                 columns = None
@@ -334,21 +406,104 @@ def _load_csv(path):
         raise InputError(f'{path}: not a text CSV file (it is not UTF-8 text)') from None
     except OSError as exc:
         raise InputError(f'{path}: cannot read the file ({exc.strerror or exc})') from None
+    return _checked_samples(path, columns, lines, header_lineno)
 
+
+def _iter_csv(path, chunk_rows, on_read=None):
+    """Yield checked Samples pieces of a CSV file, ``chunk_rows`` data lines at a time."""
+    try:
+        f, names, header_lineno, layout = _open_csv(path)
+        with f:
+            used = list(layout)
+            offset, t_before = 0, None
+            try:
+                for block, nbytes in _parse_chunks(f, [layout[n] for n in used], chunk_rows):
+                    if on_read is not None:
+                        on_read(nbytes)
+                    columns = _columns(block, used)
+                    piece = _checked_samples(path, columns, None, header_lineno, offset,
+                                             t_before)
+                    offset += len(piece)
+                    t_before = piece.t[-1]
+                    yield piece
+            except ValueError:
+                if offset:      # a bad cell past the first block: word it, from the start
+                    _parse_careful(path, header_lineno, layout, names)
+                columns = None
+            if offset == 0 and columns is not None:
+                raise InputError(f'{path}: the file has a header row but no data rows')
+        if columns is None:   # the careful parse decides (e.g. an all-empty temp column)
+            columns, lines = _parse_careful(path, header_lineno, layout, names)
+            whole = _checked_samples(path, columns, lines, header_lineno)
+            for a in range(0, len(whole), chunk_rows):
+                yield whole.subset(slice(a, a + chunk_rows))
+    except UnicodeDecodeError:
+        raise InputError(f'{path}: not a text CSV file (it is not UTF-8 text)') from None
+    except OSError as exc:
+        raise InputError(f'{path}: cannot read the file ({exc.strerror or exc})') from None
+
+
+def iter_samples(path, chunk_rows=CHUNK_ROWS, imu_topic=None, temp_topic=None, on_read=None):
+    """
+    Load a recording piece by piece: a generator of validated ``Samples``.
+
+    A CSV file is read ``chunk_rows`` data lines at a time, so a file of any length is
+    handled in bounded memory; problems are reported as by ``load_samples`` (a bad row
+    in a later piece raises when that piece is reached). A bag is loaded whole, then
+    handed out in pieces.
+
+    :param path: as for ``load_samples``.
+    :param chunk_rows: data rows per piece.
+    :param imu_topic: bags only, as for ``load_samples``.
+    :param temp_topic: bags only, as for ``load_samples``.
+    :param on_read: CSV only: called with the characters read for each piece (progress).
+    :return: generator of Samples, in time order.
+    :raises InputError: as ``load_samples``.
+    """
+    p = Path(path)
+    if p.suffix.lower() == '.csv' and p.is_file():
+        for piece in _iter_csv(p, chunk_rows, on_read):
+            try:
+                yield piece.validate()
+            except InputError as exc:
+                raise InputError(f'{p}: {exc}') from None
+        return
+    whole = load_samples(path, imu_topic=imu_topic, temp_topic=temp_topic)
+    for a in range(0, len(whole), chunk_rows):
+        yield whole.subset(slice(a, a + chunk_rows))
+
+
+def _checked_samples(path, columns, lines, header_lineno, row_offset=0, t_before=None):
+    """
+    Check parsed CSV columns (finite values, time order) and return them as Samples.
+
+    :param columns: dict column name -> (N,) array, as parsed.
+    :param lines: (N,) file line numbers of the rows, or None (found again when needed).
+    :param row_offset: data rows before these ones (a piece of a file read in pieces).
+    :param t_before: time of the row just before these ones, s, or None.
+    """
     if not columns or len(columns['t']) == 0:
         raise InputError(f'{path}: the file has a header row but no data rows')
 
     def line_numbers(rows):
         if lines is not None:
             return [int(lines[r]) for r in rows]
-        return _data_lines(path, header_lineno, rows)
+        return _data_lines(path, header_lineno, [int(r) + row_offset for r in rows])
 
     t = columns['t']
-    accel = np.column_stack([columns['ax'], columns['ay'], columns['az']])
+    if t_before is not None and t[0] < t_before:
+        line = line_numbers([0])[0]
+        raise InputError(f'{path}, line {line}: time goes backwards (t={t[0]:.9g} s after '
+                         f'{t_before:.9g} s); rows must be in increasing time order')
+    accel = columns.get('accel')
+    if accel is None:
+        accel = np.column_stack([columns['ax'], columns['ay'], columns['az']])
     temp = columns.get('temp')
     gyro = None
     if all(n in columns for n in GYRO_COLUMNS):
-        gyro = np.column_stack([columns[n] for n in GYRO_COLUMNS])
+        gyro = columns.get('gyro')
+        if gyro is None:
+            gyro = np.column_stack([columns[n] for n in GYRO_COLUMNS])
     checks = [('time t', t), ('acceleration ax, ay, az', accel)]
     if temp is not None:
         checks.append(('temperature', temp))
@@ -595,6 +750,103 @@ def _check_extra(extra, n):
     return out
 
 
+def _csv_names(has_temp, has_gyro, extra_names=()):
+    """Return the CSV header names for samples with/without temp and gyro, plus extras."""
+    names = list(REQUIRED_COLUMNS)
+    if has_temp:
+        names.append('temp')
+    if has_gyro:
+        names.extend(GYRO_COLUMNS)
+    return names + list(extra_names)
+
+
+def _csv_block(samples, extra_values, width):
+    """Format Samples (plus extra columns) as CSV text lines, ``%.9f`` t, ``%.9g`` others."""
+    n = len(samples)
+    data = np.empty((n, width))
+    data[:, 0] = samples.t
+    data[:, 1:4] = samples.accel
+    col = 4
+    if samples.temp is not None:
+        data[:, col] = samples.temp
+        col += 1
+    if samples.gyro is not None:
+        data[:, col:col + 3] = samples.gyro
+        col += 3
+    for values in extra_values:
+        data[:, col] = values
+        col += 1
+    row = '%.9f' + ',%.9g' * (width - 1) + '\n'
+    return (row * n) % tuple(data.ravel().tolist())  # one C-level pass: faster than savetxt
+
+
+class CsvWriter:
+    """
+    The spec CSV written piece by piece into a temporary file, then renamed into place.
+
+    Use ``csv_writer(path, ...)``; each ``write`` appends rows. Memory stays bounded
+    by the pieces given, whatever the length of the file.
+    """
+
+    BLOCK_ROWS = 1 << 15
+    """Rows formatted at a time (the formatting holds Python floats for a block)."""
+
+    def __init__(self, f, has_temp, has_gyro, extra_names):
+        self._f = f
+        self.has_temp = has_temp
+        self.has_gyro = has_gyro
+        self.extra_names = list(extra_names)
+        self.names = _csv_names(has_temp, has_gyro, self.extra_names)
+        self.rows = 0
+        f.write(','.join(self.names) + '\n')
+
+    def write(self, samples, extra=None):
+        """
+        Append samples (and their extra columns) to the file.
+
+        :param samples: Samples with temp/gyro present exactly when the header has them.
+        :param extra: dict name -> (N,) array, the same names as given to ``csv_writer``.
+        :raises InputError: the samples or extra columns do not fit the header.
+        """
+        if (samples.temp is not None) != self.has_temp or \
+                (samples.gyro is not None) != self.has_gyro:
+            raise InputError('samples written to one CSV must all have (or lack) temp and gyro')
+        checked = _check_extra(extra, len(samples))
+        if [name for name, _ in checked] != self.extra_names:
+            raise InputError(f'extra columns {[n for n, _ in checked]} differ from those '
+                             f'of the header {self.extra_names}')
+        for a in range(0, len(samples), self.BLOCK_ROWS):
+            part = slice(a, a + self.BLOCK_ROWS)
+            self._f.write(_csv_block(samples.subset(part), [v[part] for _, v in checked],
+                                     len(self.names)))
+        self.rows += len(samples)
+
+
+@contextlib.contextmanager
+def csv_writer(path, has_temp=False, has_gyro=False, extra_names=()):
+    """
+    Open the spec CSV ``path`` for writing in pieces, atomically.
+
+    The rows go to a temporary file next to ``path``; it replaces ``path`` only when the
+    ``with`` block ends normally. On any exception (Ctrl-C included) it is removed and
+    an existing ``path`` stays as it was.
+
+    :param path: the CSV file to create or replace.
+    :param has_temp: the file has a ``temp`` column.
+    :param has_gyro: the file has ``gx, gy, gz`` columns.
+    :param extra_names: names of extra columns after the standard ones.
+    :return: context manager yielding a ``CsvWriter``.
+    :raises InputError: the file cannot be written.
+    """
+    _check_extra({name: np.zeros(0) for name in extra_names}, 0)
+    try:
+        with atomic_path(path) as tmp:
+            with open(tmp, 'w', encoding='utf-8', newline='') as f:
+                yield CsvWriter(f, has_temp, has_gyro, extra_names)
+    except OSError as exc:
+        raise InputError(f'{path}: cannot write ({exc.strerror or _one_line(exc)})') from None
+
+
 def write_samples_csv(path, samples, extra=None):
     """
     Write samples as the spec CSV, atomically.
@@ -604,31 +856,30 @@ def write_samples_csv(path, samples, extra=None):
     (``%.9f``, so absolute ROS times keep their fraction), other values with ``%.9g``.
 
     :param path: the CSV file to create or replace.
-    :param samples: the Samples to write.
-    :param extra: optional dict column name -> (N,) array of extra columns.
+    :param samples: the Samples to write, or an iterable of Samples pieces (written in
+        turn, in bounded memory; every piece with the same optional columns).
+    :param extra: optional dict column name -> (N,) array of extra columns (one Samples
+        only).
+    :return: the number of rows written.
     :raises InputError: an extra column is misnamed or of the wrong length, or the file
         cannot be written.
     """
-    n = len(samples)
-    names = list(REQUIRED_COLUMNS)
-    columns = [samples.t, samples.accel[:, 0], samples.accel[:, 1], samples.accel[:, 2]]
-    if samples.temp is not None:
-        names.append('temp')
-        columns.append(samples.temp)
-    if samples.gyro is not None:
-        names.extend(GYRO_COLUMNS)
-        columns.extend(samples.gyro.T)
-    for name, values in _check_extra(extra, n):
-        names.append(name)
-        columns.append(values)
-    data = np.column_stack(columns) if n else np.empty((0, len(names)))
-    fmt = ['%.9f'] + ['%.9g'] * (len(names) - 1)
-    try:
-        with atomic_path(path) as tmp:
-            np.savetxt(tmp, data, fmt=fmt, delimiter=',', header=','.join(names),
-                       comments='')
-    except OSError as exc:
-        raise InputError(f'{path}: cannot write ({exc.strerror or _one_line(exc)})') from None
+    if isinstance(samples, Samples):
+        checked = _check_extra(extra, len(samples))
+        pieces = iter(())
+        first = samples
+    else:
+        checked = []
+        pieces = iter(samples)
+        first = next(pieces, None)
+        if first is None:
+            first = Samples(np.zeros(0), np.zeros((0, 3)))
+    with csv_writer(path, first.temp is not None, first.gyro is not None,
+                    [name for name, _ in checked]) as writer:
+        writer.write(first, dict(checked) if checked else None)
+        for piece in pieces:
+            writer.write(piece)
+    return writer.rows
 
 
 def _storage_for(path, storage):
@@ -682,9 +933,8 @@ def _serialized_batch(msgtype, frame_id, ns, doubles):
     return buf
 
 
-def _write_bag_dir(bagdir, samples, imu_topic, temp_topic, frame_id, storage):
-    """Write the rosbag2 directory ``bagdir`` (must not exist) with rosbags."""
-    ts = _types()
+def _bag_batches(samples, frame_id):
+    """Serialize one piece of Samples: (stamps ns, Imu messages, Temperature messages)."""
     n = len(samples)
     ns = np.round(samples.t * 1e9).astype(np.int64)
     imu = np.zeros((n, _TAIL_DOUBLES[IMU_TYPE]))
@@ -700,19 +950,43 @@ def _write_bag_dir(bagdir, samples, imu_topic, temp_topic, frame_id, storage):
     if samples.temp is not None:
         temp_raw = _serialized_batch(TEMP_TYPE, frame_id, ns,
                                      np.column_stack([samples.temp, np.zeros(n)]))
+    return ns, imu_raw, temp_raw
+
+
+def _write_bag_dir(bagdir, pieces, imu_topic, temp_topic, frame_id, storage):
+    """Write the rosbag2 directory ``bagdir`` (must not exist) from Samples pieces."""
+    ts = _types()
     rosbag2 = _rosbags()[0]
     plugins = rosbag2.StoragePlugin
     plugin = plugins.SQLITE3 if storage == 'sqlite3' else plugins.MCAP
     with rosbag2.Writer(bagdir, version=rosbag2.Writer.VERSION_LATEST,
                         storage_plugin=plugin) as writer:
-        imu_conn = writer.add_connection(imu_topic, IMU_TYPE, typestore=ts)
-        temp_conn = None
-        if temp_raw is not None:
-            temp_conn = writer.add_connection(temp_topic, TEMP_TYPE, typestore=ts)
-        for i, stamp in enumerate(ns.tolist()):
-            writer.write(imu_conn, stamp, imu_raw[i].tobytes())
-            if temp_conn is not None:
-                writer.write(temp_conn, stamp, temp_raw[i].tobytes())
+        imu_conn = temp_conn = None
+        for samples in pieces:
+            ns, imu_raw, temp_raw = _bag_batches(samples, frame_id)
+            if imu_conn is None:
+                imu_conn = writer.add_connection(imu_topic, IMU_TYPE, typestore=ts)
+                if temp_raw is not None:
+                    temp_conn = writer.add_connection(temp_topic, TEMP_TYPE, typestore=ts)
+            for i, stamp in enumerate(ns.tolist()):
+                writer.write(imu_conn, stamp, imu_raw[i].tobytes())
+                if temp_conn is not None:
+                    writer.write(temp_conn, stamp, temp_raw[i].tobytes())
+
+
+def _checked_pieces(first, rest):
+    """Yield ``first`` then ``rest``: validated, times in order, the same columns in each."""
+    yield first
+    t_last = first.t[-1]
+    for piece in rest:
+        piece.validate()
+        if (piece.temp is None) != (first.temp is None) or \
+                (piece.gyro is None) != (first.gyro is None):
+            raise InputError('samples written to one bag must all have (or lack) temp and gyro')
+        if piece.t[0] < t_last:
+            raise InputError('bag samples must be in increasing time order')
+        t_last = piece.t[-1]
+        yield piece
 
 
 def _fsync_tree(directory):
@@ -740,7 +1014,8 @@ def write_bag(path, samples, imu_topic='/imu/data_raw', temp_topic='/imu/tempera
     present, is published on ``temp_topic`` with the same stamp as each Imu message.
 
     :param path: output file (``.mcap``/``.db3``) or bag directory.
-    :param samples: the Samples to write (t in seconds, t >= 0).
+    :param samples: the Samples to write (t in seconds, t >= 0), or an iterable of Samples
+        pieces in time order (written in turn, in bounded memory).
     :param imu_topic: topic of the ``sensor_msgs/msg/Imu`` messages.
     :param temp_topic: topic of the ``sensor_msgs/msg/Temperature`` messages.
     :param frame_id: ``header.frame_id`` of every message.
@@ -751,6 +1026,12 @@ def write_bag(path, samples, imu_topic='/imu/data_raw', temp_topic='/imu/tempera
     """
     target = Path(path)
     storage = _storage_for(target, storage)
+    rest = iter(())
+    if not isinstance(samples, Samples):
+        rest = iter(samples)
+        samples = next(rest, None)
+        if samples is None:
+            raise InputError('no samples: the recording is empty')
     samples.validate()
     if samples.t[0] < 0:
         raise InputError('bag times must not be negative (t starts at '
@@ -768,12 +1049,14 @@ def write_bag(path, samples, imu_topic='/imu/data_raw', temp_topic='/imu/tempera
         raise InputError(f'{target}: output directory {parent} does not exist')
     name = target.stem if single_file else target.name
     try:
+        import tempfile      # here, not at the top: reading a CSV does not pay for it
         scratch = Path(tempfile.mkdtemp(prefix=f'.{name}.', suffix='.tmp', dir=parent))
     except OSError as exc:
         raise InputError(f'{target}: cannot write ({exc.strerror or _one_line(exc)})') from None
     try:
         bagdir = scratch / name
-        _write_bag_dir(bagdir, samples, imu_topic, temp_topic, frame_id, storage)
+        _write_bag_dir(bagdir, _checked_pieces(samples, rest), imu_topic, temp_topic,
+                       frame_id, storage)
         _fsync_tree(bagdir)
         if single_file:
             replace_into(bagdir / f'{name}{_STORAGE_SUFFIX[storage]}', str(target))
@@ -783,5 +1066,6 @@ def write_bag(path, samples, imu_topic='/imu/data_raw', temp_topic='/imu/tempera
     except OSError as exc:
         raise InputError(f'{target}: cannot write ({exc.strerror or _one_line(exc)})') from None
     finally:
+        import shutil
         shutil.rmtree(scratch, ignore_errors=True)
     return target
