@@ -28,12 +28,12 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from .common import declare, integer, number, run, text
+from ..core.advice import advise, coverage
 from ..core.calibration import calibrate, default_calibration_path
 from ..core.diagnose import diagnose_windows
 from ..core.errors import CalibrationError, InputError
-from ..core.ml import cramer_rao_bound, fit_ml
 from ..core.thermal import MIN_WINDOWS_PER_BAND
-from ..core.windows import distinct_directions, OnlineStaticDetector, StaticWindows
+from ..core.windows import OnlineStaticDetector, StaticWindows
 
 METHODS = ('ml', 'gn', 'ml-bc')
 THERMAL_MODES = ('auto', 'on', 'off')
@@ -47,9 +47,6 @@ accelerometer's bias does not repeat between poses better than about 0.5 mg (bia
 instability, hand and table vibration), and a 6-parameter ``gn`` fit leaves a
 residual of that order on a sensor with small cross-axis terms. Below this floor a
 residual is never a reason to refuse."""
-PRIOR_WEIGHT = 1e-3
-"""Weight (in typical windows) of the weak prior that keeps the pose ranking defined."""
-DISTINCT_ANGLE_DEG = 15.0
 QUEUE_DEPTH = 200
 """Input queue depth (samples): 1 s at 200 Hz, 0.2 s at 1 kHz."""
 
@@ -89,99 +86,6 @@ def measure_rate(stamps):
 def stamp_seconds(stamp):
     """builtin_interfaces/Time as float seconds."""
     return stamp.sec + stamp.nanosec * 1e-9
-
-
-# -- pose advice ---------------------------------------------------------------------------
-
-def cube_directions():
-    """Return the 26 candidate poses (cube faces, edges, corners): unit vectors, names."""
-    dirs, names = [], []
-    for x in (-1, 0, 1):
-        for y in (-1, 0, 1):
-            for z in (-1, 0, 1):
-                v = (x, y, z)
-                if v == (0, 0, 0):
-                    continue
-                dirs.append(np.array(v, float) / math.sqrt(x * x + y * y + z * z))
-                names.append(pose_name(v))
-    order = np.argsort([sum(map(abs, np.sign(d))) for d in dirs], kind='stable')
-    return np.array(dirs)[order], [names[i] for i in order]
-
-
-def pose_name(v):
-    """
-    Name of the pose whose upward body direction is ``v`` (components -1, 0, 1).
-
-    One axis: '+x up', '-z up'; several: 'x+z up', '-x-y+z up'.
-    """
-    terms = [('+' if c > 0 else '-') + axis for c, axis in zip(v, 'xyz') if c]
-    name = ''.join(terms)
-    if len(terms) > 1 and name.startswith('+'):
-        name = name[1:]
-    return name + ' up'
-
-
-CANDIDATES, CANDIDATE_NAMES = cube_directions()
-
-
-def current_estimate(means, weights, gravity):
-    """(T, bias) from the windows so far: ML once there are 10, else the ideal sensor."""
-    if len(means) >= 10:
-        try:
-            fit = fit_ml(means, weights, gravity, max_iter=30)
-            if np.all(np.isfinite(fit.T)) and np.all(np.diag(fit.T) > 0.5):
-                return fit.T, fit.bias
-        except (CalibrationError, np.linalg.LinAlgError, ValueError):
-            pass
-    return np.eye(3), np.zeros(3)
-
-
-def coverage(directions):
-    """Sphere coverage of unit vectors (N, 3): (smallest scatter eigenvalue x 3, distinct)."""
-    if len(directions) == 0:
-        return 0.0, 0
-    scatter = directions.T @ directions / len(directions)
-    return (max(0.0, float(3.0 * np.linalg.eigvalsh(scatter)[0])),
-            distinct_directions(directions, DISTINCT_ANGLE_DEG))
-
-
-def next_pose(T, bias, directions, weights, gravity, sigma):
-    """
-    Rank the 26 cube poses by how much each would shrink the Cramér-Rao bound.
-
-    The bound is the 9-parameter ML one whatever the method (``gn`` fits a subset of
-    the same parameters, so the ranking carries over). The score is the trace of the
-    bound, with T relative and the bias in units of gravity, after adding one window
-    of typical weight in the candidate direction. A weak prior (all candidates at
-    :data:`PRIOR_WEIGHT`) keeps the bound finite while there are fewer windows than
-    parameters.
-
-    :param T: (3, 3) current estimate; ``bias`` (3,) m/s².
-    :param directions: (N, 3) unit directions of the windows so far.
-    :param weights: (N,) their weights (samples).
-    :param gravity: m/s²; ``sigma``: per-sample noise, m/s².
-
-    :return: (name, direction (3,), relative trace decrease or NaN).
-    """
-    typical = float(np.median(weights)) if len(weights) else 1.0
-    prior_w = np.full(len(CANDIDATES), PRIOR_WEIGHT * typical)
-    base_u = np.vstack([directions.reshape(-1, 3), CANDIDATES])
-    base_w = np.concatenate([np.asarray(weights, float), prior_w])
-    scale = np.r_[np.ones(6), np.full(3, 1.0 / gravity)]
-
-    def score(u, w):
-        try:
-            crb = cramer_rao_bound(T, bias, u, sigma, w, gravity)
-        except np.linalg.LinAlgError:
-            return math.inf
-        return float(np.sum(np.diag(crb) * scale ** 2))
-
-    before = score(base_u, base_w)
-    scores = [score(np.vstack([base_u, c]), np.r_[base_w, typical]) for c in CANDIDATES]
-    best = int(np.argmin(scores))
-    gain = (before - scores[best]) / before if math.isfinite(before) and before > 0 \
-        else float('nan')
-    return CANDIDATE_NAMES[best], CANDIDATES[best], gain
 
 
 # -- the node ------------------------------------------------------------------------------
@@ -337,23 +241,21 @@ class CalibrationNode(Node):
         means, weights, temps, noise = self._arrays()
         d = {'windows': len(means), 'rate_hz': self.rate_hz, 'seq': self._seq,
              'coverage': {'min_eigenvalue_x3': 0.0, 'distinct_directions': 0},
-             'next_pose': '+z up', 'next_direction': [0.0, 0.0, 1.0],
+             'next_pose': 'z axis up', 'next_direction': [0.0, 0.0, 1.0],
              'expected_uncertainty_decrease': None, 'last_window': None,
              'temperature_c': None, 'last_calibration': self._last_result}
         if len(means) == 0:
             return d
-        T, bias = current_estimate(means, weights, g)
-        u = np.linalg.solve(T, (means - bias).T).T
-        u /= np.linalg.norm(u, axis=1, keepdims=True)
-        eig, distinct = coverage(u)
-        sigma = max(float(np.sqrt(np.mean(noise ** 2))), MIN_WINDOW_NOISE)
-        name, direction, gain = next_pose(T, bias, u, weights, g, sigma)
+        advice = advise(means, weights, noise, g,
+                        method='gn' if self.params['method'] == 'gn' else 'ml')
+        eig, distinct = coverage(advice.directions)
+        pose = advice.next_pose
         finite_t = temps[np.isfinite(temps)]
         d['coverage'] = {'min_eigenvalue_x3': round(eig, 4), 'distinct_directions': distinct}
-        d['next_pose'] = name
-        d['next_direction'] = [round(float(v), 4) for v in direction]
-        if math.isfinite(gain):
-            d['expected_uncertainty_decrease'] = round(gain, 4)
+        d['next_pose'] = pose.name if pose else 'enough'
+        d['next_direction'] = [round(float(v), 4) for v in pose.gravity_direction] if pose \
+            else None
+        d['predicted_accuracy'] = advice.to_dict()['predicted_accuracy']
         if len(finite_t):
             d['temperature_c'] = [round(float(finite_t.min()), 2),
                                   round(float(finite_t.max()), 2)]
