@@ -29,11 +29,12 @@ from std_srvs.srv import Trigger
 
 from .common import declare, integer, number, run, text
 from ..core.advice import advise, coverage
-from ..core.calibration import calibrate, default_calibration_path
+from ..core.calibration import calibrate
 from ..core.diagnose import diagnose_windows
 from ..core.errors import CalibrationError, InputError
 from ..core.thermal import MIN_WINDOWS_PER_BAND
 from ..core.windows import OnlineStaticDetector, StaticWindows
+from ..dataio.calibration_file import default_calibration_path, save_calibration
 
 METHODS = ('ml', 'gn', 'ml-bc')
 THERMAL_MODES = ('auto', 'on', 'off')
@@ -375,7 +376,7 @@ class CalibrationNode(Node):
                                    + ' (are the readings in m/s2?)')
         bands = 0 if cal.thermal is None else len(cal.thermal.usable)
         try:
-            cal.save(p['calibration_file'])
+            save_calibration(cal, p['calibration_file'])
         except OSError as err:
             raise CalibrationError(f'cannot write {p["calibration_file"]}: {err}') from None
         with np.printoptions(precision=5, suppress=True):
