@@ -23,7 +23,6 @@ A thin shell around :mod:`accel_calib_ros.core`:
 from collections import deque
 import json
 import math
-import os
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
@@ -34,13 +33,14 @@ from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from .common import declare_parameters, Param, ParameterProblem, run
+from .common import (calibration_path, declare_parameters, make_directory, Param,
+                     ParameterProblem, run)
 from ..core.advice import advise, coverage
 from ..core.calibration import calibrate
 from ..core.errors import CalibrationError, InputError
 from ..core.thermal import MIN_WINDOWS_PER_BAND
 from ..core.windows import DEFAULTS, OnlineStaticDetector, StaticWindows
-from ..dataio.calibration_file import default_calibration_path, save_calibration
+from ..dataio.calibration_file import save_calibration
 
 METHODS = ('ml', 'gn', 'ml-bc')
 THERMAL_MODES = ('auto', 'on', 'off')
@@ -60,16 +60,6 @@ THERMAL_EFFECTS = ('temperature_bias', 'temperature_scale')
 LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
                      reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
-
-def calibration_path(value):
-    """
-    Resolve the ``calibration_file`` parameter: '' means the default, ``~`` is expanded.
-
-    :param value: value as read.
-    :return: the path to use.
-    """
-    return os.path.expanduser(value) if value else default_calibration_path()
 
 
 def stamp_seconds(stamp):
@@ -207,11 +197,7 @@ class CalibrationNode(Node):
                                     **self._detector_settings())
 
     def _make_directory(self, path):
-        folder = os.path.dirname(os.path.abspath(path))
-        try:
-            os.makedirs(folder, exist_ok=True)
-        except OSError as err:
-            self.get_logger().warning(f'cannot create {folder}: {err}')
+        make_directory(path, self.get_logger())
 
     def _on_params(self, changes):
         """Apply a runtime parameter change (called by the common mechanism)."""

@@ -17,6 +17,7 @@ The older per-value checks (:func:`declare`, :func:`number`, :func:`integer`,
 """
 
 import math
+import os
 import sys
 
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
@@ -370,6 +371,37 @@ def declare_parameters(node, specs, on_change=None):
     node.add_pre_set_parameters_callback(coerce)
     node.add_on_set_parameters_callback(on_set)
     return values
+
+
+def calibration_path(value):
+    """
+    Resolve a ``calibration_file`` parameter: '' means the default, ``~`` is expanded.
+
+    :param value: value as read.
+    :return: the path to use ($ROS_HOME/accel_calib_ros/calibration.yaml by default).
+    """
+    if value:
+        return os.path.expanduser(value)
+    from ..dataio.calibration_file import default_calibration_path
+    return default_calibration_path()
+
+
+def make_directory(path, logger=None):
+    """
+    Create the directory of ``path`` if missing; log (not raise) when it cannot be made.
+
+    :param path: a file path.
+    :param logger: rclpy logger for the warning, or None.
+    :return: whether the directory exists now.
+    """
+    folder = os.path.dirname(os.path.abspath(path))
+    try:
+        os.makedirs(folder, exist_ok=True)
+        return True
+    except OSError as err:
+        if logger is not None:
+            logger.warning(f'cannot create {folder}: {err}')
+        return False
 
 
 def run(node_class, logger_name, args=None):
