@@ -12,6 +12,7 @@ from each end (the hand is still settling there).
 from collections import deque
 import copy
 from dataclasses import dataclass
+import math
 
 import numpy as np
 
@@ -259,6 +260,7 @@ class OnlineStaticDetector:
         self._last_t = None
         self._acc_hist, self._gyr_hist = _FloorHistogram(), _FloorHistogram()
         self._ready = deque()
+        self._raw = deque()             # the last ``rate_memory`` raw samples (replay)
         self.rate_hz = None
         self.relocks = 0
         self._pre = []                  # samples held until the rate is known (bounded)
@@ -294,11 +296,19 @@ class OnlineStaticDetector:
         q = self._gyr_hist.quantile(self.quantile)
         return max(q, 1e-6) if np.isfinite(q) else float('nan')
 
+    def _recent_raw(self):
+        """Return the last ``rate_memory`` raw samples fed (before this chunk), or None."""
+        while len(self._raw) > 1 and sum(len(b['t']) for b in self._raw) \
+                - len(self._raw[0]['t']) >= self._dt.maxlen:
+            self._raw.popleft()
+        return _concat(list(self._raw)) if self._raw else None
+
     def retained_samples(self):
         """Return how many samples the detector holds now (bounded)."""
         def n(block):
             return 0 if block is None else len(block['t'])
-        return n(self._hist) + n(self._buf) + n(self._region) + len(self._pre)
+        return n(self._hist) + n(self._buf) + n(self._region) + len(self._pre) \
+            + sum(n(b) for b in self._raw)
 
     # -- input -----------------------------------------------------------------------------
     def update(self, t, accel, temp=float('nan'), gyro=None):
@@ -331,13 +341,22 @@ class OnlineStaticDetector:
         dt = np.diff(np.r_[self._last_t if self._last_t is not None else np.nan, block['t']])
         self._dt.extend(dt[np.isfinite(dt) & (dt > 0)].tolist())
         self._last_t = float(block['t'][-1])
+        replay = self._recent_raw()
+        self._raw.append(_take(block, slice(-self._dt.maxlen, None)))
         if len(self._dt) >= 8:
             rate = 1.0 / float(np.median(self._dt))
             if self.rate_hz is None or abs(rate / self.rate_hz - 1.0) > 0.05:
                 if self.rate_hz is not None:
-                    out += self.finish()
+                    # Judge what was held with the old rate, keep what ended before the
+                    # recent samples, and go over those again with the new rate.
+                    start = math.inf if replay is None else replay['t'][0]
+                    out += [w for w in self.finish() if w['t_stop'] < start]
                     self.relocks += 1
-                self._lock(rate)
+                    self._lock(rate)
+                    if replay is not None:
+                        out += self._process(replay)
+                else:
+                    self._lock(rate)
         if self.rate_hz is None:
             self._pre.append(block)
             while sum(len(b['t']) for b in self._pre) > 4096:

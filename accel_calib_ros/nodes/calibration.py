@@ -515,14 +515,14 @@ class CalibrationNode(Node):
                 + ('' if thermal or not self._thermal_wanted(temps, 'auto') else
                    '; the windows fill two temperature bands: try thermal:=auto')
                 + '; the model-gap check follows on ~/status')
+        acc = cal.predicted_accuracy
+        if acc is None or not acc <= p['max_predicted_error']:
+            raise refuse(self._accuracy_reason(cal))
         problems = cal.physical_problems(p['max_scale_error'], p['max_cross_axis'],
                                          p['max_bias_g'])
         if problems:
             raise refuse('not physical: ' + '; '.join(problems)
                          + ' (are the readings in m/s2?)')
-        acc = cal.predicted_accuracy
-        if acc is None or not acc <= p['max_predicted_error']:
-            raise refuse(self._accuracy_reason(cal))
         bands = 0 if cal.thermal is None else len(cal.thermal.usable)
         self._make_directory(self.path)
         try:
