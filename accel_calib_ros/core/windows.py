@@ -214,6 +214,20 @@ class _FloorHistogram:
         return float(10.0 ** (self.LOW + (k + min(max(frac, 0.0), 1.0)) / self.PER_DECADE))
 
 
+def received_rate(dt):
+    """
+    Return the samples received per second from stamp intervals ``dt`` (s, positive).
+
+    Lost samples lengthen some intervals, so this is below the nominal rate (the
+    median interval) when the stream drops messages: the window lengths counted in
+    samples then still span the intended seconds. Gaps beyond 20 median intervals (a
+    reconnect) are left out. Equal to the nominal rate on a lossless stream.
+    """
+    dt = np.asarray(dt, float)
+    kept = dt[dt <= 20.0 * np.median(dt)]
+    return len(kept) / float(np.sum(kept))
+
+
 class OnlineStaticDetector:
     """
     Streaming :func:`detect_static_windows`: the same windows, in bounded memory.
@@ -221,10 +235,12 @@ class OnlineStaticDetector:
     Feed chunks of samples as they arrive (:meth:`feed`); finished windows come back
     as dicts. The steps are those of the offline detector, in the same units:
 
-    - the sample rate is the median stamp interval of the recent samples, tracked
-      continuously (a burst of stale samples at start-up is forgotten within
-      ``rate_memory`` samples; when the estimate moves by more than 5 % the
-      sample counts below are re-derived);
+    - the sample rate is the rate at which samples arrive (:func:`received_rate` of
+      the last ``rate_memory`` stamp intervals: the median rate of a lossless stream,
+      lower when messages are lost), tracked continuously: a burst of stale samples
+      at start-up is forgotten within ``rate_memory`` samples; when the estimate moves
+      by more than 10 % the sample counts below are re-derived and the recent samples
+      are gone over again;
     - the centred moving standard deviation over ``window_s`` (edges padded with the
       first and last sample, like the offline one) of the acceleration and, when
       ``use_gyro`` and the gyro is given, of the angular rate;
@@ -296,12 +312,14 @@ class OnlineStaticDetector:
         q = self._gyr_hist.quantile(self.quantile)
         return max(q, 1e-6) if np.isfinite(q) else float('nan')
 
-    def _recent_raw(self):
-        """Return the last ``rate_memory`` raw samples fed (before this chunk), or None."""
-        while len(self._raw) > 1 and sum(len(b['t']) for b in self._raw) \
-                - len(self._raw[0]['t']) >= self._dt.maxlen:
+    def _trim_raw(self):
+        """Keep about the last ``rate_memory`` raw samples fed (for a replay)."""
+        while len(self._raw) > 1 and self._raw_count() - len(self._raw[0]['t']) \
+                >= self._dt.maxlen:
             self._raw.popleft()
-        return _concat(list(self._raw)) if self._raw else None
+
+    def _raw_count(self):
+        return sum(len(b['t']) for b in self._raw)
 
     def retained_samples(self):
         """Return how many samples the detector holds now (bounded)."""
@@ -341,14 +359,16 @@ class OnlineStaticDetector:
         dt = np.diff(np.r_[self._last_t if self._last_t is not None else np.nan, block['t']])
         self._dt.extend(dt[np.isfinite(dt) & (dt > 0)].tolist())
         self._last_t = float(block['t'][-1])
-        replay = self._recent_raw()
+        self._trim_raw()
+        before = list(self._raw)
         self._raw.append(_take(block, slice(-self._dt.maxlen, None)))
         if len(self._dt) >= 8:
-            rate = 1.0 / float(np.median(self._dt))
-            if self.rate_hz is None or abs(rate / self.rate_hz - 1.0) > 0.05:
+            rate = received_rate(self._dt)
+            if self.rate_hz is None or abs(rate / self.rate_hz - 1.0) > 0.1:
                 if self.rate_hz is not None:
                     # Judge what was held with the old rate, keep what ended before the
                     # recent samples, and go over those again with the new rate.
+                    replay = _concat(before) if before else None
                     start = math.inf if replay is None else replay['t'][0]
                     out += [w for w in self.finish() if w['t_stop'] < start]
                     self.relocks += 1
