@@ -372,9 +372,9 @@ def test_session_start_up_burst_and_gyro_bias(node_in_process, tmp_path):
     node = node_in_process(calibration_file=str(tmp_path / 'new' / 'dir' / 'cal.yaml'))
     assert (tmp_path / 'new' / 'dir').is_dir()               # default directories made
     rng = np.random.default_rng(7)
-    for k in range(300):                # 300 queued samples arriving 100 us apart
-        node.on_imu(imu_message(990.0 + 1e-4 * k, s.samples.accel[0] + rng.normal(0, 0.5, 3),
-                                rng.normal(0.3, 0.05, 3)))
+    for k in range(300):                # 300 queued samples stamped 100 us apart
+        node.on_imu(imu_message(999.97 + 1e-4 * k, s.samples.accel[0] + rng.normal(0, 0.03, 3),
+                                rng.normal(0.0, 0.002, 3) + [0.012, -0.02, 0.007]))
     bias = np.array([0.012, -0.02, 0.007])
     feed(node, s.samples, gyro_bias=bias)
     assert collected(node) == 16                         # every hold

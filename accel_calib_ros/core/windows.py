@@ -10,9 +10,7 @@ from each end (the hand is still settling there).
 """
 
 from collections import deque
-import copy
 from dataclasses import dataclass
-import math
 
 import numpy as np
 
@@ -228,6 +226,33 @@ def received_rate(dt):
     return len(kept) / float(np.sum(kept))
 
 
+class _MedianHistogram:
+    """Running per-axis median of values within ±``span`` (bins of ``step``), bounded."""
+
+    def __init__(self, span=0.5, step=2.5e-4, axes=3):
+        self.span, self.step = span, step
+        self.counts = np.zeros((axes, int(round(2 * span / step)) + 1), np.int64)
+        self.total = 0
+
+    def add(self, values):
+        """Count the rows of (N, axes) values (clipped to the span)."""
+        v = np.asarray(values, float)
+        if not len(v):
+            return
+        idx = np.clip(np.rint((v + self.span) / self.step), 0, self.counts.shape[1] - 1)
+        for axis in range(self.counts.shape[0]):
+            self.counts[axis] += np.bincount(idx[:, axis].astype(np.int64),
+                                             minlength=self.counts.shape[1])
+        self.total += len(v)
+
+    def median(self):
+        """Return the per-axis median, or zeros before any value."""
+        if not self.total:
+            return np.zeros(self.counts.shape[0])
+        k = np.argmax(np.cumsum(self.counts, axis=1) >= (self.total + 1) / 2.0, axis=1)
+        return k * self.step - self.span
+
+
 class OnlineStaticDetector:
     """
     Streaming :func:`detect_static_windows`: the same windows, in bounded memory.
@@ -241,14 +266,18 @@ class OnlineStaticDetector:
       at start-up is forgotten within ``rate_memory`` samples; when the estimate moves
       by more than 10 % the sample counts below are re-derived and the recent samples
       are gone over again;
-    - the centred moving standard deviation over ``window_s`` (edges padded with the
-      first and last sample, like the offline one) of the acceleration and, when
-      ``use_gyro`` and the gyro is given, of the angular rate;
+    - the centred moving standard deviation of the acceleration over ``window_s``
+      (edges padded with the first and last sample, like the offline one);
     - the noise floor is the ``floor_quantile`` of every moving standard deviation so
-      far (kept as a log histogram), never below 1e-5 g (gyro: 1e-6 rad/s);
-    - still = both standard deviations below ``threshold_factor`` x their floor; a run
-      of still samples loses ``trim_s`` at each end and is kept when at least
-      ``min_duration_s`` remains.
+      far (kept as a log histogram), never below 1e-5 g;
+    - still = the standard deviation below ``threshold_factor`` x the floor; a run of
+      still samples loses ``trim_s`` at each end and is kept when at least
+      ``min_duration_s`` remains;
+    - with a gyro (and ``use_gyro``), a run must also turn slower than
+      ``max_rotation_rad_s``: the centred moving mean of the rate over ``window_s``
+      minus the gyro bias (the mean rate of the still samples so far). A run that
+      turns is cut to its longest part that does not (``trim_s`` more where it meets
+      the rotation), or dropped and listed in :attr:`dropped`.
 
     Stretches that may be still (below ``floor_slack`` x the threshold) are kept until
     they end, then judged with the floor known at that time, so a floor that is still
@@ -267,14 +296,19 @@ class OnlineStaticDetector:
                  min_duration_s=DEFAULTS['min_duration_s'],
                  threshold_factor=DEFAULTS['threshold_factor'], trim_s=DEFAULTS['trim_s'],
                  floor_quantile=DEFAULTS['floor_quantile'], use_gyro=True,
+                 max_rotation_rad_s=DEFAULTS.get('max_rotation_rad_s', 0.0349066),
                  rate_memory=256, max_run_s=30.0, floor_slack=1.5, gravity=9.80665):
         self.window_s, self.min_duration_s, self.trim_s = window_s, min_duration_s, trim_s
         self.factor, self.quantile = threshold_factor, floor_quantile
         self.use_gyro, self.max_run_s, self.slack = use_gyro, max_run_s, floor_slack
+        self.max_rotation = max_rotation_rad_s if use_gyro and max_rotation_rad_s \
+            and np.isfinite(max_rotation_rad_s) else None
+        self._gyro_hist = _MedianHistogram()
+        self.dropped = deque(maxlen=100)
         self.min_floor = 1e-5 * gravity
         self._dt = deque(maxlen=max(int(rate_memory), 8))
         self._last_t = None
-        self._acc_hist, self._gyr_hist = _FloorHistogram(), _FloorHistogram()
+        self._acc_hist = _FloorHistogram()
         self._ready = deque()
         self._raw = deque()             # the last ``rate_memory`` raw samples (replay)
         self.rate_hz = None
@@ -307,10 +341,9 @@ class OnlineStaticDetector:
         return max(q, self.min_floor) if np.isfinite(q) else float('nan')
 
     @property
-    def gyro_floor(self):
-        """Return the gyro noise floor so far, rad/s (NaN before any gyro data)."""
-        q = self._gyr_hist.quantile(self.quantile)
-        return max(q, 1e-6) if np.isfinite(q) else float('nan')
+    def gyro_bias(self):
+        """Return the median angular rate of the still samples so far, rad/s (3,)."""
+        return self._gyro_hist.median()
 
     def _trim_raw(self):
         """Keep about the last ``rate_memory`` raw samples fed (for a replay)."""
@@ -355,6 +388,21 @@ class OnlineStaticDetector:
         block = _block(t, accel, temp, gyro)
         if not len(block['t']):
             return []
+        if self.rate_hz and self._last_t is not None:
+            gap = np.flatnonzero(np.diff(np.r_[self._last_t, block['t']])
+                                 > max(20.0 / self.rate_hz, 0.25))
+            if len(gap):
+                # A gap (reconnect, pause): the data either side are not one stream.
+                k = int(gap[0])
+                out = []
+                if k:
+                    out += self.feed(block['t'][:k], block['a'][:k], block['temp'][:k],
+                                     None if block['g'] is None else block['g'][:k])
+                out += self.finish()
+                self._raw.clear()
+                self._last_t = None
+                rest = _take(block, slice(k, None))
+                return out + self.feed(rest['t'], rest['a'], rest['temp'], rest['g'])
         out = []
         dt = np.diff(np.r_[self._last_t if self._last_t is not None else np.nan, block['t']])
         self._dt.extend(dt[np.isfinite(dt) & (dt > 0)].tolist())
@@ -369,7 +417,7 @@ class OnlineStaticDetector:
                     # Judge what was held with the old rate, keep what ended before the
                     # recent samples, and go over those again with the new rate.
                     replay = _concat(before) if before else None
-                    start = math.inf if replay is None else replay['t'][0]
+                    start = float('inf') if replay is None else replay['t'][0]
                     out += [w for w in self.finish() if w['t_stop'] < start]
                     self.relocks += 1
                     self._lock(rate)
@@ -408,6 +456,7 @@ class OnlineStaticDetector:
 
     def peek(self):
         """Return the windows :meth:`finish` would give now, without ending the stream."""
+        import copy
         return copy.deepcopy(self).finish()
 
     # -- the offline steps, chunk by chunk -----------------------------------------------
@@ -428,35 +477,59 @@ class OnlineStaticDetector:
             self._buf = buf
             return []
         acc_std = _moving_std_valid(x['a'] - self._ref, n)
-        gyr_std = None
-        if self.use_gyro and x['g'] is not None:
-            gyr_std = _moving_std_valid(x['g'] - self._gref, n)
+        gyro_mean = None
+        if self.max_rotation is not None and x['g'] is not None:
+            gyro_mean = _moving_mean_valid(x['g'] - self._gref, n) + self._gref
         # Sample at x index left + k has the window x[k, k + n).
         done = _take(x, np.arange(left, left + ready))
         done['s'] = acc_std
-        done['sg'] = gyr_std
+        done['mg'] = gyro_mean
         rest = np.arange(left + ready, size)
         self._buf = _take(x, rest) if len(rest) else None
         keep = np.arange(left + ready - left, left + ready)
         self._hist = _take(x, keep)
         return self._stage(done)
 
-    def _thresholds(self):
-        acc = self.factor * self.noise_floor
-        gyr = self.factor * self.gyro_floor if self.use_gyro else float('nan')
-        return acc, gyr
-
     def _still(self, block, slack=1.0):
-        acc, gyr = self._thresholds()
-        mask = block['s'] <= slack * acc
-        if block.get('sg') is not None and np.isfinite(gyr):
-            mask &= block['sg'] <= slack * gyr
-        return mask
+        return block['s'] <= slack * self.factor * self.noise_floor
+
+    def _turning(self, r, a, b):
+        """Boolean (b - a,) of the samples r[a:b] that turn faster than allowed."""
+        if self.max_rotation is None or r.get('mg') is None:
+            return np.zeros(max(b - a, 0), bool)
+        spin = np.linalg.norm(r['mg'][a:b] - self.gyro_bias, axis=1)
+        return spin > self.max_rotation
+
+    def _rotation_cut(self, r, a, b, keep_start):
+        """
+        Apply the gyro test to the run r[a:b] as the offline detector does.
+
+        :param keep_start: the run continues a folded beginning: keep the part at ``a``.
+        :return: (a, b) of the part kept, or None when none is long enough.
+        """
+        turning = self._turning(r, a, b)
+        if not turning.any():
+            return a, b
+        sub_a, sub_b = _runs(~turning)
+        sub_a = np.where(sub_a > 0, sub_a + self.trim, sub_a) + a
+        sub_b = np.where(sub_b < b - a, sub_b - self.trim, sub_b) + a
+        lengths = sub_b - sub_a
+        if keep_start:
+            return (a, max(sub_b[0], a)) if len(sub_a) and sub_a[0] == a else (a, a)
+        if len(lengths) and lengths.max() >= self.min_len:
+            k = int(np.argmax(lengths))
+            return int(sub_a[k]), int(sub_b[k])
+        spin = np.linalg.norm(r['mg'][a:b] - self.gyro_bias, axis=1)
+        self.dropped.append({'t_start': float(r['t'][a]), 't_stop': float(r['t'][b - 1]),
+                             'reason': f'rotating: gyro shows up to '
+                                       f'{np.degrees(spin.max()):.1f} deg/s (limit '
+                                       f'{np.degrees(self.max_rotation):.1f} deg/s)'})
+        return None
 
     def _stage(self, done):
         self._acc_hist.add(done['s'])
-        if done.get('sg') is not None:
-            self._gyr_hist.add(done['sg'])
+        if done['g'] is not None and self.max_rotation is not None:
+            self._gyro_hist.add(done['g'][self._still(done)])
         candidate = self._still(done, self.slack)
         out = []
         # Each stretch of candidates is held until a non-candidate sample closes it.
@@ -498,6 +571,17 @@ class OnlineStaticDetector:
                 # Still running: fold all but the tail into running sums.
                 first = a if continued else a + self.trim
                 keep_from = max(m - (self.trim + self.n), first)
+                turning = np.flatnonzero(self._turning(r, first, keep_from))
+                if len(turning):
+                    # It turned: what came before ends here, the rest starts afresh.
+                    end = first + turning[0] - (self.trim if turning[0] or continued else 0)
+                    window = _summary(fold if continued else None, r, first,
+                                      max(end, first))
+                    if window is not None and window['count'] >= self.min_len:
+                        out.append(window)
+                    self._fold = None
+                    self._region = _take(r, np.arange(first + turning[-1] + 1, m))
+                    return out
                 if keep_from > first:
                     fold = _fold(fold if continued else None, r, first, keep_from)
                     self._fold = fold
@@ -508,7 +592,13 @@ class OnlineStaticDetector:
                 return out
             a_cut = a if continued else a + self.trim
             b_cut = b - self.trim
-            window = _summary(fold if continued else None, r, a_cut, max(b_cut, a_cut))
+            total = b_cut - a_cut + (fold['n'] if continued else 0)
+            if total < self.min_len:
+                continue
+            part = self._rotation_cut(r, a_cut, b_cut, continued)
+            if part is None:
+                continue
+            window = _summary(fold if continued else None, r, part[0], part[1])
             if window is not None and window['count'] >= self.min_len:
                 out.append(window)
         self._region = None
@@ -550,6 +640,12 @@ def _moving_std_valid(x, n):
     s2 = c2[n:] - c2[:-n]
     var = np.maximum(s2 / n - (s1 / n) ** 2, 0.0)
     return np.sqrt(var.sum(axis=1) / x.shape[1])
+
+
+def _moving_mean_valid(x, n):
+    """Return the moving mean of each full window x[k:k+n], shape (len - n + 1, k)."""
+    c = np.cumsum(np.vstack([np.zeros((1, x.shape[1])), x]), axis=0)
+    return (c[n:] - c[:-n]) / n
 
 
 def _fold(fold, r, a, b):
