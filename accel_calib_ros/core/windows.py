@@ -280,9 +280,10 @@ class OnlineStaticDetector:
       the rotation), or dropped and listed in :attr:`dropped`.
 
     Stretches that may be still (below ``floor_slack`` x the threshold) are kept until
-    they end, then judged with the floor known at that time, so a floor that is still
-    settling early in a session does not cut windows differently from the offline
-    pass. A stretch longer than ``max_run_s`` is folded into running sums (memory stays
+    they end, then judged with the floor known at that time (in the first
+    ``warmup_s`` of data they wait until then), so a floor that is still settling
+    early in a session does not cut windows differently from the offline pass. A
+    stretch longer than ``max_run_s`` is folded into running sums (memory stays
     O(``max_run_s`` x rate)).
 
     A window is a dict: mean (3,) m/s², scatter (3,) per-axis sample std m/s², count,
@@ -297,7 +298,8 @@ class OnlineStaticDetector:
                  threshold_factor=DEFAULTS['threshold_factor'], trim_s=DEFAULTS['trim_s'],
                  floor_quantile=DEFAULTS['floor_quantile'], use_gyro=True,
                  max_rotation_rad_s=DEFAULTS.get('max_rotation_rad_s', 0.0349066),
-                 rate_memory=256, max_run_s=30.0, floor_slack=1.5, gravity=9.80665):
+                 rate_memory=256, max_run_s=30.0, floor_slack=1.5, gravity=9.80665,
+                 warmup_s=10.0):
         self.window_s, self.min_duration_s, self.trim_s = window_s, min_duration_s, trim_s
         self.factor, self.quantile = threshold_factor, floor_quantile
         self.use_gyro, self.max_run_s, self.slack = use_gyro, max_run_s, floor_slack
@@ -305,6 +307,8 @@ class OnlineStaticDetector:
             and np.isfinite(max_rotation_rad_s) else None
         self._gyro_hist = _MedianHistogram()
         self.dropped = deque(maxlen=100)
+        self.warmup_s = warmup_s
+        self._seen = 0                  # samples with a moving std so far
         self.min_floor = 1e-5 * gravity
         self._dt = deque(maxlen=max(int(rate_memory), 8))
         self._last_t = None
@@ -325,6 +329,7 @@ class OnlineStaticDetector:
         self.trim = int(round(self.trim_s * rate))
         self.min_len = max(int(round(self.min_duration_s * rate)), 2)
         self.cap = max(int(round(self.max_run_s * rate)), 4 * (self.n + self.trim) + 8)
+        self.warmup = int(round(self.warmup_s * rate))
 
     def _restart(self):
         """Forget the stream position (not the floor or the rate): a new stream begins."""
@@ -332,6 +337,7 @@ class OnlineStaticDetector:
         self._hist = None               # last n//2 samples (left context), arrays
         self._buf = None                # samples waiting for their right context
         self._region = None             # possibly-still samples with their std, arrays
+        self._waiting = []              # closed stretches kept until the floor settles
         self._fold = None               # running sums of a long still run folded away
 
     @property
@@ -359,6 +365,7 @@ class OnlineStaticDetector:
         def n(block):
             return 0 if block is None else len(block['t'])
         return n(self._hist) + n(self._buf) + n(self._region) + len(self._pre) \
+            + sum(n(r) for r in self._waiting) \
             + sum(n(b) for b in self._raw)
 
     # -- input -----------------------------------------------------------------------------
@@ -449,6 +456,7 @@ class OnlineStaticDetector:
             pad = self.n - self.n // 2 - 1
             last = _take(self._buf, np.full(pad, len(self._buf['t']) - 1))
             out += self._process(last)
+        out += self._judge_waiting()
         if self._region is not None:
             out += self._judge(final=True)
         self._restart()
@@ -530,20 +538,40 @@ class OnlineStaticDetector:
         self._acc_hist.add(done['s'])
         if done['g'] is not None and self.max_rotation is not None:
             self._gyro_hist.add(done['g'][self._still(done)])
+        self._seen += len(done['t'])
         candidate = self._still(done, self.slack)
         out = []
         # Each stretch of candidates is held until a non-candidate sample closes it.
         starts, stops = _runs(candidate)
         for a, b in zip(starts, stops):
             if a > 0 and self._region is not None:
-                out += self._judge(final=True)
+                out += self._close()
             self._extend_region(_take(done, np.arange(a, b)))
             if b < len(candidate):
-                out += self._judge(final=True)
+                out += self._close()
             elif len(self._region['t']) > self.cap:
-                out += self._judge(final=False)
+                out += self._judge_waiting() + self._judge(final=False)
         if not len(starts) and self._region is not None:
+            out += self._close()
+        if self._seen >= self.warmup:
+            out += self._judge_waiting()
+        return out
+
+    def _close(self):
+        """Judge the stretch that just ended, or keep it until the floor has settled."""
+        if self._seen < self.warmup:
+            self._waiting.append(self._region)
+            self._region = None
+            return []
+        return self._judge_waiting() + self._judge(final=True)
+
+    def _judge_waiting(self):
+        out = []
+        held, self._region = self._region, None
+        while self._waiting:
+            self._region = self._waiting.pop(0)
             out += self._judge(final=True)
+        self._region = held
         return out
 
     def _extend_region(self, block):
