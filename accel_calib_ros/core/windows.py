@@ -299,7 +299,7 @@ class OnlineStaticDetector:
                  floor_quantile=DEFAULTS['floor_quantile'], use_gyro=True,
                  max_rotation_rad_s=DEFAULTS.get('max_rotation_rad_s', 0.0349066),
                  rate_memory=256, max_run_s=30.0, floor_slack=1.5, gravity=9.80665,
-                 warmup_s=10.0):
+                 warmup_s=5.0):
         self.window_s, self.min_duration_s, self.trim_s = window_s, min_duration_s, trim_s
         self.factor, self.quantile = threshold_factor, floor_quantile
         self.use_gyro, self.max_run_s, self.slack = use_gyro, max_run_s, floor_slack
@@ -461,6 +461,10 @@ class OnlineStaticDetector:
             out += self._judge(final=True)
         self._restart()
         return out
+
+    def release(self):
+        """Judge the stretches waiting for the floor to settle now; return their windows."""
+        return self._judge_waiting()
 
     def peek(self):
         """Return the windows :meth:`finish` would give now, without ending the stream."""

@@ -417,6 +417,8 @@ class CalibrationNode(Node):
             the reason for refusal.
         """
         self.process_pending()
+        for window in self.detector.release():
+            self._add(window, publish=False)
         held = self.detector.peek()
         accuracy = None
         try:
