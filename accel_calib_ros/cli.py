@@ -80,6 +80,8 @@ def build_parser():
     p.add_argument('-o', '--output', help='write the calibration YAML here (atomically)')
     p.add_argument('--json', action='store_true', help='print one JSON object')
     _add_window_args(p)
+    from .history_cli import add_fit_arguments
+    add_fit_arguments(p)
 
     p = sub.add_parser('apply', help='correct a recording with a calibration file')
     p.add_argument('calibration', help='calibration YAML from "accel-calib fit"')
@@ -124,6 +126,9 @@ def build_parser():
         p.set_defaults(run_device=device.run)
     except ImportError as err:      # pragma: no cover - only while device.py is missing
         p.set_defaults(run_device=None, device_error=str(err))
+    from . import guide, history_cli
+    COMMANDS.update(guide.add_parsers(sub))
+    COMMANDS.update(history_cli.add_parsers(sub))
     return parser
 
 
@@ -167,6 +172,9 @@ def _fit_summary(cal, extra):
 def cmd_fit(args, out):
     samples = _load(args)
     readings, weights, temps, noise, n_obs = _observations(samples, args)
+    if getattr(args, 'history', None) is not None:      # per-sensor history: history_cli.py
+        from .history_cli import history_observations
+        readings, weights, temps, n_obs = history_observations(args, samples)
     cal = calibrate(readings, gravity=args.gravity, method=args.method, weights=weights,
                     temps=temps, thermal=args.thermal, band_width_c=args.band_width,
                     noise_std=noise, source=os.path.basename(args.data))
@@ -176,6 +184,9 @@ def cmd_fit(args, out):
     if args.output:
         from .dataio.calibration_file import save_calibration
         save_calibration(cal, args.output)
+    if getattr(args, 'history', None) is not None:
+        from .history_cli import record_fit
+        record_fit(args, cal, temps)
     for problem in cal.physical_problems():
         print(f'accel-calib: warning: {problem} (are the data in m/s²?)', file=sys.stderr)
     summary = _fit_summary(cal, extra)

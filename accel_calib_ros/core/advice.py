@@ -6,10 +6,11 @@ vector along which the accelerometer reads +1 g while the pose is held (the sens
 pointing up). The poses a person can hold without a fixture are the 26 of a cube
 resting on a table: 6 faces, 12 edges at 45° and 8 corners (:data:`CANDIDATE_POSES`).
 
-Predicted accuracy (interface §5) is the RMS error of the corrected acceleration
-vector at 1 g averaged over orientations uniform on the sphere, propagated from the
-covariance of (T, bias). Here the covariance is the Cramér-Rao bound of the ML model
-at the current estimate (the fit's own covariance near the optimum), with the noise
+Predicted accuracy (interface §5, :func:`.accuracy.predicted_accuracy`) is the RMS
+error of the corrected acceleration vector at 1 g averaged over orientations uniform
+on the sphere, propagated from the covariance of (T, bias). Here the covariance is
+the Cramér-Rao bound of the ML model at the current estimate (the fit's own
+covariance near the optimum), with the noise
 of each window mean taken from the data: the within-window scatter divided by the
 window's samples, plus a small floor for what does not average down (bias
 instability, the hand), and inflated by the residual χ²/dof when the windows scatter
@@ -28,6 +29,7 @@ import math
 
 import numpy as np
 
+from .accuracy import predicted_accuracy
 from .errors import CalibrationError, InputError
 
 G0 = 9.80665
@@ -118,44 +120,6 @@ def pose_name(direction):
 
 # -- predicted accuracy ---------------------------------------------------------------------
 
-def predicted_accuracy(T, covariance, gravity=G0):
-    """
-    RMS error of the corrected vector at |g|, averaged over the sphere (interface §5).
-
-    The corrected vector is ``a = T⁻¹ (y - b)``; a parameter error moves it by
-    ``da = -T⁻¹ (dT a + db)``. With ``a = g u`` and ``E[u uᵀ] = I / 3`` over the sphere
-    the mean square is ``trace(J Σ Jᵀ)`` averaged in closed form.
-
-    :param T: (3, 3) upper triangular, dimensionless.
-    :param covariance: (9, 9) covariance of (T upper row-major, bias m/s²).
-    :param gravity: m/s².
-    :return: m/s² (inf when the covariance is not finite).
-    """
-    try:
-        from .accuracy import predicted_accuracy as shared
-    except ImportError:
-        shared = None
-    if shared is not None:
-        return float(shared(T, covariance, gravity))
-    return float(_accuracy_from_covariance(T, covariance, gravity))
-
-
-def _accuracy_from_covariance(T, covariance, gravity):
-    cov = np.asarray(covariance, float)
-    if not np.all(np.isfinite(cov)):
-        return math.inf
-    R = np.linalg.inv(np.asarray(T, float))
-    M = R.T @ R
-    rows, cols = _UPPER
-    total = 0.0
-    for a, (i, j) in enumerate(zip(rows, cols)):
-        for c, (k, m) in enumerate(zip(rows, cols)):
-            if j == m:
-                total += cov[a, c] * M[i, k] * gravity ** 2 / 3.0
-    total += float(np.sum(cov[6:, 6:] * M))
-    return math.sqrt(max(total, 0.0))
-
-
 def true_accuracy(T_est, bias_est, T_true, bias_true, gravity=G0):
     """
     RMS error of the corrected vector at |g| over the sphere, for known true parameters.
@@ -190,6 +154,12 @@ def fisher_rows(T, directions, gravity=G0):
     h[:, :6] = n[:, rows] * gravity * u[:, cols]
     h[:, 6:] = n
     return h
+
+
+def _accuracy(T, cov, gravity):
+    """Predicted accuracy (m/s²), inf when it cannot be computed."""
+    value = predicted_accuracy(T, cov, gravity)
+    return value if math.isfinite(value) else math.inf
 
 
 def _covariance(info, index):
@@ -442,7 +412,7 @@ def advise(means, weights, noise_std, gravity=G0, method='ml', target=DEFAULT_TA
         if cov is None:
             solved, reason = False, 'the poses leave a parameter undetermined'
         else:
-            current = predicted_accuracy(T, cov * inflation, gravity)
+            current = _accuracy(T, cov * inflation, gravity)
 
     cand_rows = fisher_rows(T, CANDIDATE_DIRECTIONS, gravity)
     after = np.full(len(CANDIDATE_DIRECTIONS), math.inf)
@@ -451,7 +421,7 @@ def advise(means, weights, noise_std, gravity=G0, method='ml', target=DEFAULT_TA
     for k, h in enumerate(cand_rows):
         cov = _covariance(base + np.outer(h, h) / typical_var, index)
         if cov is not None:
-            after[k] = predicted_accuracy(T, cov * inflation, gravity)
+            after[k] = _accuracy(T, cov * inflation, gravity)
     if not solved:
         if n + 1 >= MIN_WINDOWS[method]:
             # The accuracy once this pose makes the model solvable (no prior), if it does.
@@ -460,7 +430,7 @@ def advise(means, weights, noise_std, gravity=G0, method='ml', target=DEFAULT_TA
                 cov = _covariance(info + np.outer(h, h) / typical_var, index)
                 if cov is not None and not _solvable(np.vstack([u, CANDIDATE_DIRECTIONS[k]]),
                                                      method):
-                    exact[k] = predicted_accuracy(T, cov, gravity)
+                    exact[k] = _accuracy(T, cov, gravity)
         else:
             exact = np.full(len(CANDIDATE_DIRECTIONS), math.inf)
     enough = bool(solved and current is not None and current <= target)
