@@ -384,6 +384,13 @@ def test_session_start_up_burst_and_gyro_bias(node_in_process, tmp_path):
     cal = load_calibration(tmp_path / 'new' / 'dir' / 'cal.yaml')
     assert np.abs(cal.gyro_bias - bias).max() < 3e-4
     assert cal.sensor_id == 'imu_link' and cal.predicted_accuracy <= 0.02
+    # The calibration and its windows are in the history next to the file.
+    from accel_calib_ros.dataio.history import History
+    with History(tmp_path / 'new' / 'dir' / 'history.sqlite') as history:
+        (row,) = history.calibrations('imu_link')
+        assert row['method'] == 'ml' and abs(row['predicted_accuracy']
+                                             - cal.predicted_accuracy) < 1e-9
+        assert len(history.windows('imu_link')['mean']) == 16
 
 
 def test_parameters_change_at_runtime_or_are_refused(node_in_process, tmp_path):

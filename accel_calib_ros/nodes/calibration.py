@@ -23,6 +23,7 @@ A thin shell around :mod:`accel_calib_ros.core`:
 from collections import deque
 import json
 import math
+import os
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
@@ -139,6 +140,10 @@ PARAMS = [
           low=0.0, high=100000.0),
     Param('sensor_id', '',
           "name of the sensor in the history ('' = the messages' frame_id)"),
+    Param('history', True,
+          'record each saved calibration and its windows in the history database'),
+    Param('history_file', '',
+          "history database ('' = history.sqlite next to calibration_file)"),
 ]
 
 
@@ -540,7 +545,36 @@ class CalibrationNode(Node):
                    f'residual {cal.residual_rms:.4f} m/s2, thermal bands {bands}')
         if cal.gyro_bias is not None:
             msg += f', gyro bias {np.round(cal.gyro_bias, 5).tolist()} rad/s'
+        self.record_history(cal, windows, weights, temps)
         return cal, msg
+
+    def history_path(self):
+        """Return the history database path ('' = next to the calibration file)."""
+        value = self.params['history_file']
+        if value:
+            return os.path.expanduser(value)
+        return os.path.join(os.path.dirname(os.path.abspath(self.path)), 'history.sqlite')
+
+    def record_history(self, cal, windows, weights, temps):
+        """Record a saved calibration and its windows (a failure is logged, not fatal)."""
+        if not self.params['history']:
+            return
+        import sqlite3
+        from ..dataio.history import History
+        sensor = cal.sensor_id or 'imu'
+        now = self.get_clock().now().nanoseconds * 1e-9
+        times = np.array([w['t_mid'] for w in windows], float)
+        if not np.all(np.isfinite(times) & (times > 1e9)):     # device clock: use now
+            times = np.full(len(windows), now)
+        gyro = np.array([w['gyro_mean'] if w.get('gyro_mean') is not None
+                         else np.full(3, np.nan) for w in windows], float).reshape(-1, 3)
+        try:
+            with History(self.history_path()) as history:
+                history.add_windows(sensor, np.array([w['mean'] for w in windows], float),
+                                    temps, weights, times, gyro)
+                history.add_calibration(sensor, cal, windows=len(windows))
+        except (InputError, sqlite3.Error, OSError, ValueError) as err:
+            self.get_logger().warning(f'history not recorded: {err}')
 
     def _complete(self, cal, windows, temps):
         """Fill what the core leaves to the caller: accuracy, gyro bias, range, sensor id."""
