@@ -107,8 +107,6 @@ class Corrector:
         self._gyro_temp = None
         self._banded_gyro = cal is not None and cal.thermal is not None and \
             cal.thermal.gyro_bias(np.array([25.0])) is not None
-        self._gyro_cov_key = None
-        self._gyro_cov = None
 
     def coefficients(self, temp):
         """Drift (quadratic, linear, offset) per axis at ``temp`` °C, or None (no drift)."""
@@ -160,27 +158,21 @@ class Corrector:
         """
         Return the angular-velocity covariance to publish for the driver's ``cov`` (9,).
 
-        Unchanged when the driver reports none (``[0] = -1``) or unknown (all zeros), or
-        when the gyro bias is removed and no level trim rotates it; else what is left
-        (plus the uncorrected zero-rate offset), rotated by the level trim.
+        None (publish it as it came) when the driver reports none (``[0] = -1``) or
+        unknown (all zeros), or when the gyro bias is removed and no level trim rotates
+        it; else what is left (plus the uncorrected zero-rate offset), rotated by the
+        level trim.
         """
-        if self.gyro_bias is not None and self.L is None:
-            return cov
-        key = tuple(cov)
-        if key == self._gyro_cov_key:
-            return self._gyro_cov
-        c = np.asarray(key, float).reshape(3, 3)
-        if key[0] < 0.0 or not any(key):
-            out = cov
-        else:
-            if self.gyro_bias is None:
-                c = c + np.eye(3) * UNCALIBRATED_GYRO_BIAS_STD ** 2
-            if self.L is not None:
-                L = np.asarray(self.L)
-                c = L @ c @ L.T
-            out = np.ascontiguousarray(c, dtype=np.float64).reshape(9)
-        self._gyro_cov_key, self._gyro_cov = key, out
-        return out
+        c = np.asarray(cov, float).reshape(3, 3)
+        if (self.gyro_bias is not None and self.L is None) or c[0, 0] < 0.0 \
+                or not np.any(c):
+            return None
+        if self.gyro_bias is None:
+            c = c + np.eye(3) * UNCALIBRATED_GYRO_BIAS_STD ** 2
+        if self.L is not None:
+            L = np.asarray(self.L)
+            c = L @ c @ L.T
+        return np.ascontiguousarray(c, dtype=np.float64).reshape(9)
 
 
 def file_key(path):
@@ -203,7 +195,8 @@ PARAMS = [
           low=0.0, high=100.0),
     Param('level_duration_s', 2.0, 'seconds of samples ~/level averages', low=0.1,
           high=5.0),
-    Param('diagnostics_period_s', 1.0, '/diagnostics period, s', low=0.1, high=60.0,
+    Param('diagnostics_period_s', 1.0,
+          '/diagnostics period, s (checked every reload_period_s)', low=0.1, high=60.0,
           read_only=True),
 ]
 
@@ -216,6 +209,9 @@ class CorrectionNode(Node):
         self.params = declare_parameters(self, PARAMS, self._on_params)
         self.path = calibration_path(self.params['calibration_file'])
         self.corrector = Corrector(None)
+        self._cov_key = None        # incoming covariances last judged (bytes)
+        self._wcov = None           # angular-velocity covariance to publish, None = as came
+        self._cov_finite = True
         self.temperature = float('nan')
         self._key = ()              # file key last acted on (loaded or rejected); () = never
         self._file_problem = ''     # why the file on disk is not the one in use
@@ -241,8 +237,9 @@ class CorrectionNode(Node):
         self.create_subscription(Imu, 'imu/data_raw', self.on_imu, sub_qos)
         self.create_subscription(Temperature, 'imu/temperature', self.on_temperature, sub_qos)
         self.create_service(Trigger, '~/level', self.on_level)
-        self._reload_timer = self.create_timer(self.params['reload_period_s'], self.check_file)
-        self.create_timer(self.params['diagnostics_period_s'], self.publish_diagnostics)
+        # One timer for both chores (fewer entities for the executor to wait on).
+        self._next_diagnostics = 0.0
+        self._reload_timer = self.create_timer(self.params['reload_period_s'], self._tick)
 
     def _on_params(self, changes):
         """Apply a runtime parameter change (called by the common mechanism)."""
@@ -253,8 +250,15 @@ class CorrectionNode(Node):
             self.check_file()
         if 'reload_period_s' in changes:
             self.destroy_timer(self._reload_timer)
-            self._reload_timer = self.create_timer(changes['reload_period_s'],
-                                                   self.check_file)
+            self._reload_timer = self.create_timer(changes['reload_period_s'], self._tick)
+
+    def _tick(self):
+        """Check the file; publish /diagnostics when its period has passed."""
+        self.check_file()
+        now = self.get_clock().now().nanoseconds * 1e-9
+        if now >= self._next_diagnostics:
+            self._next_diagnostics = now + self.params['diagnostics_period_s']
+            self.publish_diagnostics()
 
     # -- the stream ------------------------------------------------------------------------
     def on_temperature(self, msg):
@@ -283,11 +287,18 @@ class CorrectionNode(Node):
         a.x, a.y, a.z = x, y, z = c.correct(a.x, a.y, a.z, temp)
         w.x, w.y, w.z = gx, gy, gz = c.correct_gyro(w.x, w.y, w.z, temp)
         msg.linear_acceleration_covariance = c.covariance
-        wcov = msg.angular_velocity_covariance = c.gyro_covariance(
-            msg.angular_velocity_covariance)
-        check = x + y + z + gx + gy + gz + o.x + o.y + o.z + o.w \
-            + float(msg.orientation_covariance.sum()) + float(wcov.sum())
-        if check - check != 0.0:            # NaN or infinite somewhere
+        # The incoming covariances rarely change: judge them once per distinct value.
+        key = msg.orientation_covariance.tobytes() + msg.angular_velocity_covariance.tobytes()
+        if key != self._cov_key:
+            self._cov_key = key
+            self._wcov = c.gyro_covariance(msg.angular_velocity_covariance)
+            self._cov_finite = bool(np.all(np.isfinite(msg.orientation_covariance)) and np.all(
+                np.isfinite(msg.angular_velocity_covariance if self._wcov is None
+                            else self._wcov)))
+        if self._wcov is not None:
+            msg.angular_velocity_covariance = self._wcov
+        check = x + y + z + gx + gy + gz + o.x + o.y + o.z + o.w
+        if check - check != 0.0 or not self._cov_finite:      # NaN or infinite somewhere
             self._dropped += 1
             if self._dropped == 1 or self._dropped % 1000 == 0:
                 self.get_logger().warning(
@@ -334,6 +345,7 @@ class CorrectionNode(Node):
 
     def _use(self, corrector, verb):
         self.corrector = corrector
+        self._cov_key = None
         self._file_problem = ''
         cal = corrector.cal
         std = np.sqrt(np.diag(cal.acceleration_covariance()))
