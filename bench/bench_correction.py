@@ -36,15 +36,15 @@ def _qos():
     return sub, pub
 
 
-def run_relay():
-    """Subscribe to imu/data_raw and republish each message unchanged on bench/relay."""
+def run_relay(topic='bench/relay'):
+    """Subscribe to imu/data_raw and republish each message unchanged on ``topic``."""
     import rclpy
     from rclpy.executors import ExternalShutdownException
     from sensor_msgs.msg import Imu
     rclpy.init()
-    node = rclpy.create_node('bench_relay')
+    node = rclpy.create_node('bench_relay' if topic == 'bench/relay' else 'bench_control')
     sub_qos, pub_qos = _qos()
-    pub = node.create_publisher(Imu, 'bench/relay', pub_qos)
+    pub = node.create_publisher(Imu, topic, pub_qos)
     node.create_subscription(Imu, 'imu/data_raw', pub.publish, sub_qos)
     try:
         rclpy.spin(node)
@@ -126,12 +126,17 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--rate', type=float, default=1000.0, help='input rate, Hz')
     parser.add_argument('--duration', type=float, default=10.0, help='seconds of input')
-    parser.add_argument('--role', choices=('main', 'relay', 'publisher'), default='main',
-                        help=argparse.SUPPRESS)
+    parser.add_argument('--role', choices=('main', 'relay', 'control', 'publisher'),
+                        default='main', help=argparse.SUPPRESS)
+    parser.add_argument('--control', action='store_true',
+                        help='A/A check of the bench: a second bare relay in place of the '
+                             "correction node (its ratios show the bench's own bias)")
     parser.add_argument('--consumers', type=int, default=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.role == 'relay':
         return run_relay()
+    if args.role == 'control':
+        return run_relay('imu/corrected')
     if args.role == 'publisher':
         return run_publisher(args.rate, args.duration, args.consumers)
 
@@ -147,7 +152,8 @@ def main():
     write_calibration(cal_path)
     py = sys.executable
     procs = [
-        subprocess.Popen([py, '-m', 'accel_calib_ros.nodes.correction', '--ros-args',
+        subprocess.Popen([py, HERE, '--role', 'control'] if args.control else
+                         [py, '-m', 'accel_calib_ros.nodes.correction', '--ros-args',
                           '--log-level', 'warn', '-p', f'calibration_file:={cal_path}'],
                          env=env),
         subprocess.Popen([py, HERE, '--role', 'relay'], env=env),
