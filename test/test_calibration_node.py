@@ -241,9 +241,17 @@ def test_thermal_tables_when_two_bands_are_filled(node_in_process, tmp_path):
     means = simulate_window_means(sensor, u, 300, rng, temp=temps)
     node = node_in_process()
     inject_windows(node, means, temps)
+    save_calibration(Calibration(T=np.eye(3), bias=np.zeros(3),
+                                 level_roll_pitch_rad=(0.01, -0.02)),
+                     tmp_path / 'calibration.yaml')
     response = node.on_calibrate(Trigger.Request(), Trigger.Response())
     assert response.success, response.message
     assert 'thermal bands 2' in response.message
+    # No model-gap note contradicting its own thermal fit; the level trim is kept.
+    gap = node.model_gap(list(node.windows), 'ml', thermal_bands=2)
+    assert not {'temperature_bias', 'temperature_scale'} & set(gap['missing_effects'])
+    assert load_calibration(tmp_path / 'calibration.yaml').level_roll_pitch_rad \
+        == (0.01, -0.02)
     cal = load_calibration(tmp_path / 'calibration.yaml')
     fresh = 9.80665 * directions(200, 9)
     for temp in (22.0, 37.0):

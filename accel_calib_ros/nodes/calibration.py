@@ -531,6 +531,7 @@ class CalibrationNode(Node):
             raise refuse('not physical: ' + '; '.join(problems)
                          + ' (are the readings in m/s2?)')
         bands = 0 if cal.thermal is None else len(cal.thermal.usable)
+        self._keep_level_trim(cal)
         self._make_directory(self.path)
         try:
             save_calibration(cal, self.path)
@@ -575,6 +576,16 @@ class CalibrationNode(Node):
                 history.add_calibration(sensor, cal, windows=len(windows))
         except (InputError, sqlite3.Error, OSError, ValueError) as err:
             self.get_logger().warning(f'history not recorded: {err}')
+
+    def _keep_level_trim(self, cal):
+        """Carry the level trim of the file being replaced over (the mounting is the same)."""
+        if cal.level_roll_pitch_rad is not None or not os.path.exists(self.path):
+            return
+        from ..dataio.calibration_file import load_calibration
+        try:
+            cal.level_roll_pitch_rad = load_calibration(self.path).level_roll_pitch_rad
+        except InputError:
+            pass
 
     def _complete(self, cal, windows, temps):
         """Fill what the core leaves to the caller: accuracy, gyro bias, range, sensor id."""
