@@ -264,8 +264,8 @@ class OnlineStaticDetector:
       the last ``rate_memory`` stamp intervals: the median rate of a lossless stream,
       lower when messages are lost), tracked continuously: a burst of stale samples
       at start-up is forgotten within ``rate_memory`` samples; when the estimate moves
-      by more than 10 % the sample counts below are re-derived and the recent samples
-      are gone over again;
+      by more than 0.5 % the sample counts below follow it (samples still waiting for
+      their moving window, e.g. a start-up burst, get the new one);
     - the centred moving standard deviation of the acceleration over ``window_s``
       (edges padded with the first and last sample, like the offline one);
     - the noise floor is the ``floor_quantile`` of every moving standard deviation so
@@ -314,7 +314,7 @@ class OnlineStaticDetector:
         self._last_t = None
         self._acc_hist = _FloorHistogram()
         self._ready = deque()
-        self._raw = deque()             # the last ``rate_memory`` raw samples (replay)
+        self.rate_tolerance = 0.005
         self.rate_hz = None
         self.relocks = 0
         self._pre = []                  # samples held until the rate is known (bounded)
@@ -351,22 +351,12 @@ class OnlineStaticDetector:
         """Return the median angular rate of the still samples so far, rad/s (3,)."""
         return self._gyro_hist.median()
 
-    def _trim_raw(self):
-        """Keep about the last ``rate_memory`` raw samples fed (for a replay)."""
-        while len(self._raw) > 1 and self._raw_count() - len(self._raw[0]['t']) \
-                >= self._dt.maxlen:
-            self._raw.popleft()
-
-    def _raw_count(self):
-        return sum(len(b['t']) for b in self._raw)
-
     def retained_samples(self):
         """Return how many samples the detector holds now (bounded)."""
         def n(block):
             return 0 if block is None else len(block['t'])
         return n(self._hist) + n(self._buf) + n(self._region) + len(self._pre) \
-            + sum(n(r) for r in self._waiting) \
-            + sum(n(b) for b in self._raw)
+            + sum(n(r) for r in self._waiting)
 
     # -- input -----------------------------------------------------------------------------
     def update(self, t, accel, temp=float('nan'), gyro=None):
@@ -406,7 +396,6 @@ class OnlineStaticDetector:
                     out += self.feed(block['t'][:k], block['a'][:k], block['temp'][:k],
                                      None if block['g'] is None else block['g'][:k])
                 out += self.finish()
-                self._raw.clear()
                 self._last_t = None
                 rest = _take(block, slice(k, None))
                 return out + self.feed(rest['t'], rest['a'], rest['temp'], rest['g'])
@@ -414,24 +403,13 @@ class OnlineStaticDetector:
         dt = np.diff(np.r_[self._last_t if self._last_t is not None else np.nan, block['t']])
         self._dt.extend(dt[np.isfinite(dt) & (dt > 0)].tolist())
         self._last_t = float(block['t'][-1])
-        self._trim_raw()
-        before = list(self._raw)
-        self._raw.append(_take(block, slice(-self._dt.maxlen, None)))
         if len(self._dt) >= 8:
             rate = received_rate(self._dt)
-            if self.rate_hz is None or abs(rate / self.rate_hz - 1.0) > 0.1:
-                if self.rate_hz is not None:
-                    # Judge what was held with the old rate, keep what ended before the
-                    # recent samples, and go over those again with the new rate.
-                    replay = _concat(before) if before else None
-                    start = float('inf') if replay is None else replay['t'][0]
-                    out += [w for w in self.finish() if w['t_stop'] < start]
-                    self.relocks += 1
-                    self._lock(rate)
-                    if replay is not None:
-                        out += self._process(replay)
-                else:
-                    self._lock(rate)
+            if self.rate_hz is None or abs(rate / self.rate_hz - 1.0) > self.rate_tolerance:
+                # The counts follow the new rate from the next samples on; samples that
+                # still wait for their moving window (e.g. after a burst) get the new one.
+                self.relocks += self.rate_hz is not None
+                self._lock(rate)
         if self.rate_hz is None:
             self._pre.append(block)
             while sum(len(b['t']) for b in self._pre) > 4096:
@@ -474,32 +452,35 @@ class OnlineStaticDetector:
     # -- the offline steps, chunk by chunk -----------------------------------------------
     def _process(self, block):
         n = self.n
-        left = n // 2
+        left, right = n // 2, n - n // 2 - 1
         if self._ref is None:
             self._ref = block['a'][0].copy()
             self._hist = _take(block, np.zeros(left, int))          # edge padding
         if self._gref is None and block['g'] is not None:
             self._gref = block['g'][0].copy()
+        hist = self._hist
+        if len(hist['t']) < left:           # the window grew (rate change): pad the edge
+            hist = _concat([_take(hist if len(hist['t']) else block,
+                                  np.zeros(left - len(hist['t']), int)), hist])
         buf = block if self._buf is None else _concat([self._buf, block])
         self._buf = None
-        x = _concat([self._hist, buf])
-        size = len(x['t'])
-        ready = size - n + 1                # windows [k, k+n) fully inside x
-        if ready <= 0:
+        x = _concat([hist, buf])
+        h, size = len(hist['t']), len(x['t'])
+        end = size - right                  # samples [h, end) get their full window now
+        if end <= h:
             self._buf = buf
             return []
-        acc_std = _moving_std_valid(x['a'] - self._ref, n)
+        span = slice(h - left, end + right)
+        acc_std = _moving_std_valid(x['a'][span] - self._ref, n)
         gyro_mean = None
         if self.max_rotation is not None and x['g'] is not None:
-            gyro_mean = _moving_mean_valid(x['g'] - self._gref, n) + self._gref
-        # Sample at x index left + k has the window x[k, k + n).
-        done = _take(x, np.arange(left, left + ready))
+            gyro_mean = _moving_mean_valid(x['g'][span] - self._gref, n) + self._gref
+        done = _take(x, slice(h, end))
         done['s'] = acc_std
         done['mg'] = gyro_mean
-        rest = np.arange(left + ready, size)
-        self._buf = _take(x, rest) if len(rest) else None
-        keep = np.arange(left + ready - left, left + ready)
-        self._hist = _take(x, keep)
+        self._buf = _take(x, slice(end, size)) if end < size else None
+        # Keep a little more left context than needed, so the window can grow a bit.
+        self._hist = _take(x, slice(max(0, end - left - n // 4), end))
         return self._stage(done)
 
     def _still(self, block, slack=1.0):
