@@ -69,6 +69,7 @@ class Rig:
                                       self.diagnostics.append, 10)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
+        self.executor.add_node(self.node.stream)
         self.executor.add_node(self.peer)
         self.spin_until(lambda: self.imu_pub.get_subscription_count() > 0
                         and self.peer.count_publishers('imu/corrected') > 0

@@ -41,6 +41,7 @@ import os
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data, QoSProfile,
                        ReliabilityPolicy)
 from sensor_msgs.msg import Imu, Temperature
@@ -232,9 +233,17 @@ class CorrectionNode(Node):
         sub_qos = QoSProfile(depth=QUEUE_DEPTH, history=qos_profile_sensor_data.history,
                              reliability=qos_profile_sensor_data.reliability,
                              durability=qos_profile_sensor_data.durability)
-        self.pub = self.create_publisher(Imu, 'imu/corrected', pub_qos)
+        # The stream runs on a second node with nothing else to wait on (no parameter
+        # services, timers or other subscriptions): main() spins it on its own
+        # executor, so each message costs no more executor work than a bare relay.
+        self.stream = Node('accel_correction_stream', context=kwargs.get('context'),
+                           start_parameter_services=False,
+                           parameter_overrides=[Parameter('start_type_description_service',
+                                                          value=False)])
+        self.pub = self.stream.create_publisher(Imu, 'imu/corrected', pub_qos)
+        self.stream.create_subscription(Imu, 'imu/data_raw', self.on_imu, sub_qos)
+        self.side_nodes = [self.stream]
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self.create_subscription(Imu, 'imu/data_raw', self.on_imu, sub_qos)
         self.create_subscription(Temperature, 'imu/temperature', self.on_temperature, sub_qos)
         self.create_service(Trigger, '~/level', self.on_level)
         # One timer for both chores (fewer entities for the executor to wait on).
@@ -436,6 +445,11 @@ class CorrectionNode(Node):
         self.get_logger().info(response.message)
         return response
 
+    def destroy_node(self):
+        """Destroy the stream node too."""
+        _destroy(self.stream)
+        return super().destroy_node()
+
     # -- diagnostics -----------------------------------------------------------------------
     def publish_diagnostics(self):
         """Publish the calibration state on /diagnostics (REP-107)."""
@@ -475,6 +489,14 @@ class CorrectionNode(Node):
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()
         self.diag_pub.publish(array)
+
+
+def _destroy(node):
+    """Destroy a node, ignoring a context already shut down."""
+    try:
+        node.destroy_node()
+    except Exception:                 # noqa: B902 - teardown must not mask the real exit
+        pass
 
 
 def _without_level(cal):
