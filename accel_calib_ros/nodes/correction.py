@@ -105,6 +105,9 @@ class Corrector:
                 raise InputError('the calibration gives non-finite corrections')
         self._drift_temp = None
         self._coef = None
+        self.cov_key = None         # incoming covariances last judged (bytes) ...
+        self.wcov = None            # ... the angular-velocity covariance to publish for
+        self.cov_finite = True      # them (None = as it came), and whether all are finite
         self._gyro_temp = None
         self._banded_gyro = cal is not None and cal.thermal is not None and \
             cal.thermal.gyro_bias(np.array([25.0])) is not None
@@ -210,9 +213,6 @@ class CorrectionNode(Node):
         self.params = declare_parameters(self, PARAMS, self._on_params)
         self.path = calibration_path(self.params['calibration_file'])
         self.corrector = Corrector(None)
-        self._cov_key = None        # incoming covariances last judged (bytes)
-        self._wcov = None           # angular-velocity covariance to publish, None = as came
-        self._cov_finite = True
         self.temperature = float('nan')
         self._key = ()              # file key last acted on (loaded or rejected); () = never
         self._file_problem = ''     # why the file on disk is not the one in use
@@ -296,18 +296,18 @@ class CorrectionNode(Node):
         a.x, a.y, a.z = x, y, z = c.correct(a.x, a.y, a.z, temp)
         w.x, w.y, w.z = gx, gy, gz = c.correct_gyro(w.x, w.y, w.z, temp)
         msg.linear_acceleration_covariance = c.covariance
-        # The incoming covariances rarely change: judge them once per distinct value.
+        # The incoming covariances rarely change: judge them once per distinct value
+        # (cached on the corrector, so a new calibration starts afresh).
         key = msg.orientation_covariance.tobytes() + msg.angular_velocity_covariance.tobytes()
-        if key != self._cov_key:
-            self._cov_key = key
-            self._wcov = c.gyro_covariance(msg.angular_velocity_covariance)
-            self._cov_finite = bool(np.all(np.isfinite(msg.orientation_covariance)) and np.all(
-                np.isfinite(msg.angular_velocity_covariance if self._wcov is None
-                            else self._wcov)))
-        if self._wcov is not None:
-            msg.angular_velocity_covariance = self._wcov
+        if key != c.cov_key:
+            wcov = c.gyro_covariance(msg.angular_velocity_covariance)
+            c.cov_finite = bool(np.all(np.isfinite(msg.orientation_covariance)) and np.all(
+                np.isfinite(msg.angular_velocity_covariance if wcov is None else wcov)))
+            c.wcov, c.cov_key = wcov, key
+        if c.wcov is not None:
+            msg.angular_velocity_covariance = c.wcov
         check = x + y + z + gx + gy + gz + o.x + o.y + o.z + o.w
-        if check - check != 0.0 or not self._cov_finite:      # NaN or infinite somewhere
+        if check - check != 0.0 or not c.cov_finite:      # NaN or infinite somewhere
             self._dropped += 1
             if self._dropped == 1 or self._dropped % 1000 == 0:
                 self.get_logger().warning(
@@ -354,7 +354,6 @@ class CorrectionNode(Node):
 
     def _use(self, corrector, verb):
         self.corrector = corrector
-        self._cov_key = None
         self._file_problem = ''
         cal = corrector.cal
         std = np.sqrt(np.diag(cal.acceleration_covariance()))
@@ -418,7 +417,7 @@ class CorrectionNode(Node):
             if cal is None:
                 raise CalibrationError('no calibration loaded: calibrate the accelerometer '
                                        'first (the trim is stored in its file)')
-            rows = list(self._recent)
+            rows = list(self._recent.copy())      # copy(): atomic against the stream
             if not rows:
                 raise CalibrationError('no imu/data_raw received yet')
             data = np.array(rows, float)
