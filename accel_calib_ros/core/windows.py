@@ -274,8 +274,9 @@ class OnlineStaticDetector:
       still samples loses ``trim_s`` at each end and is kept when at least
       ``min_duration_s`` remains;
     - with a gyro (and ``use_gyro``), a run must also turn slower than
-      ``max_rotation_rad_s``: the centred moving mean of the rate over ``window_s``
-      minus the gyro bias (the mean rate of the still samples so far). A run that
+      ``max_rotation_rad_s`` (and 5x the median rate of the still samples): the
+      centred moving mean of the rate over ``window_s`` minus the gyro bias (the
+      median rate of the still samples so far). A run that
       turns is cut to its longest part that does not (``trim_s`` more where it meets
       the rotation), or dropped and listed in :attr:`dropped`.
 
@@ -306,6 +307,7 @@ class OnlineStaticDetector:
         self.max_rotation = max_rotation_rad_s if use_gyro and max_rotation_rad_s \
             and np.isfinite(max_rotation_rad_s) else None
         self._gyro_hist = _MedianHistogram()
+        self._spin_hist = _FloorHistogram()     # rotation rate of the still samples
         self.dropped = deque(maxlen=100)
         self.warmup_s = warmup_s
         self._seen = 0                  # samples with a moving std so far
@@ -486,12 +488,23 @@ class OnlineStaticDetector:
     def _still(self, block, slack=1.0):
         return block['s'] <= slack * self.factor * self.noise_floor
 
+    def rotation_limit(self):
+        """
+        Return the rotation rate above which a sample turns, rad/s.
+
+        ``max_rotation_rad_s``, or 5x the median rate of the still samples so far when
+        that is higher (gyro noise and hand tremor, or a gyro logged in other units).
+        """
+        level = self._spin_hist.quantile(0.5)
+        return max(self.max_rotation, 5.0 * level) if np.isfinite(level) \
+            else self.max_rotation
+
     def _turning(self, r, a, b):
         """Boolean (b - a,) of the samples r[a:b] that turn faster than allowed."""
         if self.max_rotation is None or r.get('mg') is None:
             return np.zeros(max(b - a, 0), bool)
         spin = np.linalg.norm(r['mg'][a:b] - self.gyro_bias, axis=1)
-        return spin > self.max_rotation
+        return spin > self.rotation_limit()
 
     def _rotation_cut(self, r, a, b, keep_start):
         """
@@ -516,13 +529,16 @@ class OnlineStaticDetector:
         self.dropped.append({'t_start': float(r['t'][a]), 't_stop': float(r['t'][b - 1]),
                              'reason': f'rotating: gyro shows up to '
                                        f'{np.degrees(spin.max()):.1f} deg/s (limit '
-                                       f'{np.degrees(self.max_rotation):.1f} deg/s)'})
+                                       f'{np.degrees(self.rotation_limit()):.1f} deg/s)'})
         return None
 
     def _stage(self, done):
         self._acc_hist.add(done['s'])
         if done['g'] is not None and self.max_rotation is not None:
-            self._gyro_hist.add(done['g'][self._still(done)])
+            still = self._still(done)
+            self._gyro_hist.add(done['g'][still])
+            if done.get('mg') is not None:
+                self._spin_hist.add(np.linalg.norm(done['mg'][still] - self.gyro_bias, axis=1))
         self._seen += len(done['t'])
         candidate = self._still(done, self.slack)
         out = []
