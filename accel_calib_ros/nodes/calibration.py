@@ -76,6 +76,15 @@ def finite_or_none(value, digits=6):
     return round(value, digits) if math.isfinite(value) else None
 
 
+def _accepts(function, name):
+    """Whether ``function`` takes a keyword argument ``name`` (core APIs grow)."""
+    import inspect
+    try:
+        return name in inspect.signature(function).parameters
+    except (TypeError, ValueError):
+        return False
+
+
 def safe_json(obj):
     """JSON text with every non-finite number replaced by null (never NaN/Infinity)."""
     def clean(value):
@@ -491,11 +500,16 @@ class CalibrationNode(Node):
             raise CalibrationError('no static windows collected yet: hold the sensor still '
                                    'in at least 10 different orientations, 2 s each')
         thermal = self._thermal_wanted(temps)
+        extra = {}
+        gyro = [w.get('gyro_mean') for w in windows]
+        if _accepts(calibrate, 'gyro_means') and all(
+                v is not None and np.all(np.isfinite(v)) for v in gyro):
+            extra['gyro_means'] = np.array(gyro, float).reshape(-1, 3)   # per band too
         try:
             cal = calibrate(means, gravity=g, method=p['method'], weights=weights,
                             temps=temps if thermal else None, thermal=thermal,
                             band_width_c=p['band_width_c'], noise_std=noise,
-                            source=f'ros node {self.get_fully_qualified_name()}')
+                            source=f'ros node {self.get_fully_qualified_name()}', **extra)
         except InputError as err:
             raise CalibrationError(str(err)) from None
         except np.linalg.LinAlgError as err:
