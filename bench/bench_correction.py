@@ -6,7 +6,9 @@ One publisher process sends ``sensor_msgs/Imu`` on ``imu/data_raw`` at ``--rate`
 input: the correction node (``imu/corrected``) and a bare relay that only subscribes
 and republishes (``bench/relay``), both with the same QoS (best-effort input, reliable
 output, depth 100). This process subscribes to both outputs and measures delivery
-(received / published) and latency (receive time - stamp) percentiles::
+(received / published), latency (receive time - stamp) percentiles and the resident
+memory of both consumers (VmRSS at the end of the input), and prints the ratios
+issue 11 asks for (RSS <= 1.2x the relay, p50 latency <= the relay's, 100 % delivered)::
 
     python bench/bench_correction.py [--rate 1000] [--duration 10]
 """
@@ -34,15 +36,15 @@ def _qos():
     return sub, pub
 
 
-def run_relay():
-    """Subscribe to imu/data_raw and republish each message unchanged on bench/relay."""
+def run_relay(topic='bench/relay'):
+    """Subscribe to imu/data_raw and republish each message unchanged on ``topic``."""
     import rclpy
     from rclpy.executors import ExternalShutdownException
     from sensor_msgs.msg import Imu
     rclpy.init()
-    node = rclpy.create_node('bench_relay')
+    node = rclpy.create_node('bench_relay' if topic == 'bench/relay' else 'bench_control')
     sub_qos, pub_qos = _qos()
-    pub = node.create_publisher(Imu, 'bench/relay', pub_qos)
+    pub = node.create_publisher(Imu, topic, pub_qos)
     node.create_subscription(Imu, 'imu/data_raw', pub.publish, sub_qos)
     try:
         rclpy.spin(node)
@@ -97,6 +99,18 @@ def write_calibration(path):
                                  noise_std=np.full(3, 0.03)), path)
 
 
+def rss_mib(pid):
+    """Resident memory of a process, MiB (None when it is gone)."""
+    try:
+        with open(f'/proc/{pid}/status', encoding='ascii') as f:
+            for line in f:
+                if line.startswith('VmRSS:'):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        return None
+    return None
+
+
 def percentile_row(name, published, stamps_ns):
     """One table row: delivery and latency percentiles in ms."""
     lat = np.asarray(stamps_ns, float) * 1e-6
@@ -112,12 +126,17 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--rate', type=float, default=1000.0, help='input rate, Hz')
     parser.add_argument('--duration', type=float, default=10.0, help='seconds of input')
-    parser.add_argument('--role', choices=('main', 'relay', 'publisher'), default='main',
-                        help=argparse.SUPPRESS)
+    parser.add_argument('--role', choices=('main', 'relay', 'control', 'publisher'),
+                        default='main', help=argparse.SUPPRESS)
+    parser.add_argument('--control', action='store_true',
+                        help='A/A check of the bench: a second bare relay in place of the '
+                             "correction node (its ratios show the bench's own bias)")
     parser.add_argument('--consumers', type=int, default=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.role == 'relay':
         return run_relay()
+    if args.role == 'control':
+        return run_relay('imu/corrected')
     if args.role == 'publisher':
         return run_publisher(args.rate, args.duration, args.consumers)
 
@@ -133,7 +152,8 @@ def main():
     write_calibration(cal_path)
     py = sys.executable
     procs = [
-        subprocess.Popen([py, '-m', 'accel_calib_ros.nodes.correction', '--ros-args',
+        subprocess.Popen([py, HERE, '--role', 'control'] if args.control else
+                         [py, '-m', 'accel_calib_ros.nodes.correction', '--ros-args',
                           '--log-level', 'warn', '-p', f'calibration_file:={cal_path}'],
                          env=env),
         subprocess.Popen([py, HERE, '--role', 'relay'], env=env),
@@ -155,6 +175,7 @@ def main():
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     publisher = None
+    peak = [0.0, 0.0]
     try:
         end = time.monotonic() + 30.0
         while any(node.count_publishers(t) == 0 for t in lat):
@@ -166,6 +187,9 @@ def main():
                                      env=env, stdout=subprocess.PIPE, text=True)
         while publisher.poll() is None:
             executor.spin_once(timeout_sec=0.01)
+            rss = [rss_mib(p.pid) for p in procs]
+            if all(r is not None for r in rss):
+                peak = [max(a, b) for a, b in zip(peak, rss)]
         grace = time.monotonic() + 1.0
         while time.monotonic() < grace:
             executor.spin_once(timeout_sec=0.01)
@@ -191,8 +215,14 @@ def main():
     row_r, p50_r = percentile_row('bare rclpy relay', sent, lat['bench/relay'])
     print(row_c)
     print(row_r)
+    print(f'{"resident memory (peak VmRSS)":<30} correction {peak[0]:.1f} MiB, '
+          f'relay {peak[1]:.1f} MiB')
+    if peak[1]:
+        print(f'RSS ratio correction / relay: {peak[0] / peak[1]:.2f} (target <= 1.2)')
     if p50_c and p50_r:
-        print(f'p50 ratio correction / relay: {p50_c / p50_r:.2f}')
+        print(f'p50 ratio correction / relay: {p50_c / p50_r:.2f} (target <= 1.0)')
+    print(f'delivered: correction {100.0 * len(lat["imu/corrected"]) / sent:.2f} %, relay '
+          f'{100.0 * len(lat["bench/relay"]) / sent:.2f} % (target 100 %)')
     return 0
 
 

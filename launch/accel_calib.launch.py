@@ -5,11 +5,18 @@ Usage::
 
     ros2 launch accel_calib_ros accel_calib.launch.py port:=/dev/ttyACM0
     ros2 launch accel_calib_ros accel_calib.launch.py calibration_file:=/data/imu.yaml
+    ros2 launch accel_calib_ros accel_calib.launch.py calibrate:=false chain_madgwick:=true
 
 Each node reads its parameter file from this package's ``config/`` directory; the
 ``port`` and ``calibration_file`` arguments override the values there. Then hold the
-sensor still in varied orientations (watch ``/accel_calibration/status``), call
+sensor still in varied orientations (follow ``/accel_calibration/advice``), call
 ``/accel_calibration/calibrate`` and read the corrected stream on ``imu/corrected``.
+
+``chain_madgwick:=true`` adds imu_filter_madgwick (``apt install
+ros-jazzy-imu-filter-madgwick``) on the corrected stream: its input ``imu/data_raw`` is
+remapped to ``imu/corrected``, so it fuses the calibrated acceleration and the
+bias-free angular rate and publishes the orientation on ``imu/data`` (no magnetometer,
+ENU world frame, no TF unless ``madgwick_publish_tf:=true``).
 """
 
 import os
@@ -42,6 +49,11 @@ def generate_launch_description():
                               description='calibration solver: ml, gn or ml-bc'),
         DeclareLaunchArgument('calibrate', default_value='true',
                               description='start the accel_calibration node'),
+        DeclareLaunchArgument('chain_madgwick', default_value='false',
+                              description='run imu_filter_madgwick on imu/corrected '
+                                          '(orientation on imu/data)'),
+        DeclareLaunchArgument('madgwick_publish_tf', default_value='false',
+                              description='let imu_filter_madgwick publish a TF'),
         Node(package=PACKAGE, executable='mpu9250_driver', name='mpu9250_driver',
              output='screen', emulate_tty=True,
              parameters=[os.path.join(config, 'driver.yaml'), {'port': port}]),
@@ -54,4 +66,10 @@ def generate_launch_description():
              output='screen', emulate_tty=True,
              parameters=[os.path.join(config, 'correction.yaml'),
                          {'calibration_file': calibration_file}]),
+        Node(package='imu_filter_madgwick', executable='imu_filter_madgwick_node',
+             name='imu_filter', output='screen', emulate_tty=True,
+             condition=IfCondition(LaunchConfiguration('chain_madgwick')),
+             remappings=[('imu/data_raw', 'imu/corrected')],
+             parameters=[{'use_mag': False, 'world_frame': 'enu',
+                          'publish_tf': LaunchConfiguration('madgwick_publish_tf')}]),
     ])

@@ -39,7 +39,7 @@ def test_online_detector_finds_the_same_windows_with_bounded_memory():
              zip(s.samples.t, s.samples.accel, s.samples.temp)]
     found = [f for f in found if f] + [det.flush()]
     assert len(found) == 30                                # a 2 s hold counts
-    assert len(det._recent) <= det.n and len(det._tail) <= det.trim + det.n
+    assert det.retained_samples() <= det.cap + 2 * det.n
     batch = detect_static_windows(s.samples)
     np.testing.assert_allclose([f['mean'] for f in found], batch.mean, atol=0.01)
 

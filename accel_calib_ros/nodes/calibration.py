@@ -1,17 +1,23 @@
 """
-ROS 2 node ``accel_calibration``: collect static poses, solve on request, save the file.
+ROS 2 node ``accel_calibration``: collect static poses, advise, solve on request, save.
 
 A thin shell around :mod:`accel_calib_ros.core`:
 
 - ``imu/data_raw`` (sensor_msgs/Imu) and ``imu/temperature`` (sensor_msgs/Temperature),
-  both with the sensor-data QoS, feed an :class:`OnlineStaticDetector`; every finished
-  static window (a pose held still) is kept, at most ``max_windows`` of them.
-- after each window one log line and a JSON ``std_msgs/String`` on ``~/status``
-  (reliable, transient local, depth 1): windows collected, how well their directions
-  cover the sphere and the next pose that would shrink the parameter uncertainty most.
-- ``~/calibrate`` (std_srvs/Trigger) fits ``method`` to the window means and, only if the
-  result is sound, writes ``calibration_file`` atomically; otherwise it refuses with the
-  reason and leaves the file untouched. ``~/reset`` forgets the collected windows.
+  both with the sensor-data QoS, are buffered and handed in chunks to the
+  :class:`~accel_calib_ros.core.windows.OnlineStaticDetector`, the streaming form of
+  the detector ``accel-calib fit`` uses (same parameters, same windows; the sample rate
+  is tracked all along; the gyro joins the stillness test). At most ``max_windows``
+  windows are kept.
+- after each window: one log line, the advice of :func:`core.advice.advise` (spec §5
+  JSON) on ``~/advice`` and the progress on ``~/status`` (both std_msgs/String JSON,
+  reliable, transient local, depth 1), and ``/diagnostics`` at 1 Hz.
+- ``~/calibrate`` (std_srvs/Trigger) fits ``method`` to the windows and, only if the
+  result is sound (converged, residual, physical, predicted accuracy at most
+  ``max_predicted_error``), writes ``calibration_file`` atomically with the gyro bias
+  of the windows; otherwise it refuses with the reason and the file stays byte-for-byte
+  as it was. The model-gap check runs after the response and is published on
+  ``~/status``. ``~/reset`` forgets the collected windows.
 """
 
 from collections import deque
@@ -19,6 +25,7 @@ import json
 import math
 import os
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data, QoSProfile,
@@ -27,19 +34,17 @@ from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from .common import declare, integer, number, run, text
+from .common import (calibration_path, declare_parameters, make_directory, Param,
+                     ParameterProblem, run)
 from ..core.advice import advise, coverage
 from ..core.calibration import calibrate
-from ..core.diagnose import diagnose_windows
 from ..core.errors import CalibrationError, InputError
 from ..core.thermal import MIN_WINDOWS_PER_BAND
-from ..core.windows import OnlineStaticDetector, StaticWindows
-from ..dataio.calibration_file import default_calibration_path, save_calibration
+from ..core.windows import DEFAULTS, OnlineStaticDetector, StaticWindows
+from ..dataio.calibration_file import save_calibration
 
 METHODS = ('ml', 'gn', 'ml-bc')
 THERMAL_MODES = ('auto', 'on', 'off')
-RATE_SAMPLES = 50
-"""Samples buffered to measure the sample rate from the stamps' median interval."""
 MIN_WINDOW_NOISE = 0.005
 """Floor of the expected window-mean error, m/s² (about 0.5 mg).
 
@@ -50,38 +55,12 @@ residual of that order on a sensor with small cross-axis terms. Below this floor
 residual is never a reason to refuse."""
 QUEUE_DEPTH = 200
 """Input queue depth (samples): 1 s at 200 Hz, 0.2 s at 1 kHz."""
-
-
-def calibration_path(value):
-    """
-    Check the ``calibration_file`` parameter: '' means the default, ``~`` is expanded.
-
-    :param value: value as read.
-    :return: the path to use.
-    :raises ParameterProblem: not a string.
-    """
-    value = text('calibration_file', value, empty_ok=True)
-    return os.path.expanduser(value) if value else default_calibration_path()
-
-
-def measure_rate(stamps):
-    """
-    Sample rate from message stamps: nominal (median interval) and as received.
-
-    The static-window detector counts samples, so it needs the rate at which samples
-    actually arrive: with frames lost on the wire that is below the nominal rate.
-    Gaps longer than 20 nominal intervals (a reconnect) are left out.
-
-    :param stamps: increasing times, s.
-    :return: (nominal Hz, received Hz), or (None, None) when the stamps do not tell.
-    """
-    dt = np.diff(np.asarray(stamps, float))
-    dt = dt[dt > 0.0]
-    if len(dt) < len(stamps) // 2:
-        return None, None
-    median = float(np.median(dt))
-    kept = dt[dt <= 20.0 * median]
-    return 1.0 / median, len(kept) / float(np.sum(kept))
+CHUNK = 100
+"""Samples buffered before they go to the detector (also flushed every 0.1 s)."""
+THERMAL_EFFECTS = ('temperature_bias', 'temperature_scale')
+LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                     reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def stamp_seconds(stamp):
@@ -89,73 +68,120 @@ def stamp_seconds(stamp):
     return stamp.sec + stamp.nanosec * 1e-9
 
 
-# -- the node ------------------------------------------------------------------------------
+def finite_or_none(value, digits=6):
+    """Round a float for JSON; None when it is None or not finite."""
+    if value is None:
+        return None
+    value = float(value)
+    return round(value, digits) if math.isfinite(value) else None
+
+
+def _accepts(function, name):
+    """Whether ``function`` takes a keyword argument ``name`` (core APIs grow)."""
+    import inspect
+    try:
+        return name in inspect.signature(function).parameters
+    except (TypeError, ValueError):
+        return False
+
+
+def safe_json(obj):
+    """JSON text with every non-finite number replaced by null (never NaN/Infinity)."""
+    def clean(value):
+        if isinstance(value, float):
+            return value if math.isfinite(value) else None
+        if isinstance(value, dict):
+            return {k: clean(v) for k, v in value.items()}
+        if isinstance(value, (list, tuple)):
+            return [clean(v) for v in value]
+        if isinstance(value, np.generic):
+            return clean(value.item())
+        if isinstance(value, np.ndarray):
+            return clean(value.tolist())
+        return value
+    return json.dumps(clean(obj), allow_nan=False)
+
+
+def _detector_param(name, description):
+    return Param(name, 0.0, description + f' (0 = as accel-calib fit: {DEFAULTS[name]:g} s)'
+                 if name.endswith('_s') else description
+                 + f' (0 = as accel-calib fit: {DEFAULTS[name]:g})', low=0.0, high=60.0)
+
+
+PARAMS = [
+    Param('method', 'ml', 'solver: ml (Sun & Xu, 9 parameters), gn (6 parameters) or ml-bc',
+          choices=METHODS),
+    Param('calibration_file', '',
+          "YAML file written by ~/calibrate ('' = $ROS_HOME/accel_calib_ros/"
+          'calibration.yaml); its directory is created'),
+    Param('gravity', 9.80665, 'local gravity magnitude, m/s2', low=9.7, high=9.9),
+    Param('band_width_c', 10.0, 'width of a temperature band, degC', low=0.0, low_open=True,
+          high=100.0),
+    Param('thermal', 'auto',
+          'auto: temperature-band tables when >= 2 bands are filled; on; off',
+          choices=THERMAL_MODES),
+    Param('max_residual_ratio', 10.0,
+          'refuse when the gravity-norm residual RMS exceeds this x window-mean noise',
+          low=1.0),
+    Param('max_scale_error', 0.2, 'refuse when |T_ii - 1| exceeds this', low=0.0,
+          low_open=True, high=1.0),
+    Param('max_cross_axis', 0.1, 'refuse when |T_ij| / T_ii exceeds this', low=0.0,
+          low_open=True, high=1.0),
+    Param('max_bias_g', 0.25, 'refuse when a bias exceeds this many g', low=0.0,
+          low_open=True, high=2.0),
+    Param('max_predicted_error', 0.02,
+          'refuse when the predicted accuracy (RMS error at 1 g over all orientations) '
+          'exceeds this, m/s2', low=0.0, low_open=True, high=10.0),
+    Param('target_accuracy', 0.01,
+          'predicted accuracy that is enough: the advice says "enough" below it, m/s2',
+          low=0.0, low_open=True, high=10.0),
+    _detector_param('window_s', 'moving standard deviation window, s'),
+    _detector_param('min_duration_s', 'shortest static window kept after trimming, s'),
+    _detector_param('trim_s', 'cut from each end of a still stretch, s'),
+    _detector_param('threshold_factor', 'still when moving std < factor x noise floor'),
+    Param('use_gyro', True, 'the angular rate must be still too (when the driver sends it)'),
+    Param('max_windows', 500, 'windows kept; the oldest are dropped beyond', low=10,
+          high=100000),
+    Param('max_weight_s', 5.0, 'a window weighs at most this many seconds of samples',
+          low=0.0, low_open=True, high=3600.0),
+    Param('rate_hz', 0.0,
+          'sample rate to start with, Hz; 0 = measure it from the stamps (always tracked)',
+          low=0.0, high=100000.0),
+    Param('sensor_id', '',
+          "name of the sensor in the history ('' = the messages' frame_id)"),
+    Param('history', True,
+          'record each saved calibration and its windows in the history database'),
+    Param('history_file', '',
+          "history database ('' = history.sqlite next to calibration_file)"),
+]
+
 
 class CalibrationNode(Node):
-    """Collect static windows from the raw IMU stream and calibrate on request."""
+    """Collect static windows from the raw IMU stream, advise, and calibrate on request."""
 
     def __init__(self, **kwargs):
         super().__init__('accel_calibration', **kwargs)
-        p = {}
-        p['method'] = text('method', declare(
-            self, 'method', 'ml', 'solver: ml (Sun & Xu), gn (6-parameter) or ml-bc'),
-            METHODS)
-        p['calibration_file'] = calibration_path(declare(
-            self, 'calibration_file', default_calibration_path(),
-            "YAML file written by ~/calibrate ('' = $ROS_HOME/accel_calib_ros/...)"))
-        p['gravity'] = number('gravity', declare(
-            self, 'gravity', 9.80665, 'local gravity magnitude, m/s2'), 9.7, 9.9)
-        p['band_width_c'] = number('band_width_c', declare(
-            self, 'band_width_c', 10.0, 'width of a temperature band, degC'), 0.0, None, True)
-        p['thermal'] = text('thermal', declare(
-            self, 'thermal', 'auto',
-            'auto: temperature-band tables when >= 2 bands are filled; on; off'),
-            THERMAL_MODES)
-        p['max_residual_ratio'] = number('max_residual_ratio', declare(
-            self, 'max_residual_ratio', 10.0,
-            'refuse when the gravity-norm residual RMS exceeds this x window-mean noise'),
-            1.0)
-        p['max_scale_error'] = number('max_scale_error', declare(
-            self, 'max_scale_error', 0.2, 'refuse when |T_ii - 1| exceeds this'), 0.0, None,
-            True)
-        p['max_cross_axis'] = number('max_cross_axis', declare(
-            self, 'max_cross_axis', 0.1, 'refuse when |T_ij| / T_ii exceeds this'), 0.0, None,
-            True)
-        p['max_bias_g'] = number('max_bias_g', declare(
-            self, 'max_bias_g', 0.25, 'refuse when a bias exceeds this many g'), 0.0, None,
-            True)
-        p['window_s'] = number('window_s', declare(
-            self, 'window_s', 0.25, 'moving standard deviation window, s'), 0.0, 10.0, True)
-        p['min_duration_s'] = number('min_duration_s', declare(
-            self, 'min_duration_s', 1.0, 'shortest static window kept after trimming, s'),
-            0.0, None, True)
-        p['trim_s'] = number('trim_s', declare(
-            self, 'trim_s', 0.2, 'cut from each end of a still stretch, s'), 0.0, 10.0)
-        p['threshold_factor'] = number('threshold_factor', declare(
-            self, 'threshold_factor', 3.0, 'still when moving std < factor x noise floor'),
-            1.0, None, True)
-        p['max_windows'] = integer('max_windows', declare(
-            self, 'max_windows', 500, 'windows kept; the oldest are dropped beyond'), 10)
-        p['max_weight_s'] = number('max_weight_s', declare(
-            self, 'max_weight_s', 5.0, 'a window weighs at most this many seconds of samples'),
-            0.0, None, True)
-        p['rate_hz'] = number('rate_hz', declare(
-            self, 'rate_hz', 0.0,
-            'samples received per second; 0 = measure it from the first 50 stamps'),
-            0.0)
-        self.params = p
-        self.windows = deque(maxlen=p['max_windows'])
+        self.params = declare_parameters(self, PARAMS, self._on_params)
+        if self.params['threshold_factor'] and self.params['threshold_factor'] < 1.0:
+            raise ParameterProblem("parameter 'threshold_factor' must be 0 or >= 1, got "
+                                   f"{self.params['threshold_factor']!r}")
+        self.path = calibration_path(self.params['calibration_file'])
+        self._make_directory(self.path)
+        self.windows = deque(maxlen=self.params['max_windows'])
         self.temperature = float('nan')
-        self.rate_hz = p['rate_hz'] or None
-        self.detector = self._new_detector() if self.rate_hz else None
-        self._startup = []          # (t, accel) buffered while the rate is measured
+        self.frame_id = ''
+        self.detector = self._new_detector()
+        self._pending = []          # (t, ax, ay, az, gx, gy, gz, temp) not yet detected
         self._seq = 0
-        self._last_result = None    # {'success', 'message'} of the last ~/calibrate
+        self._dropped = 0           # samples with a non-finite acceleration
+        self._last_result = None    # {'success', 'message', ...} of the last ~/calibrate
+        self._advice = None
+        self._model_gap = None
+        self._gap_timer = None
 
-        status_qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
-                                reliability=ReliabilityPolicy.RELIABLE,
-                                durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self.status_pub = self.create_publisher(String, '~/status', status_qos)
+        self.status_pub = self.create_publisher(String, '~/status', LATCHED)
+        self.advice_pub = self.create_publisher(String, '~/advice', LATCHED)
+        self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         # Sensor-data QoS (best effort, volatile) with a deeper queue than its 5, so a
         # solve or a burst does not drop samples.
         sub_qos = QoSProfile(depth=QUEUE_DEPTH, history=qos_profile_sensor_data.history,
@@ -165,122 +191,212 @@ class CalibrationNode(Node):
         self.create_subscription(Temperature, 'imu/temperature', self.on_temperature, sub_qos)
         self.create_service(Trigger, '~/calibrate', self.on_calibrate)
         self.create_service(Trigger, '~/reset', self.on_reset)
-        self.publish_status()
+        self.create_timer(0.1, self.process_pending)
+        self.create_timer(1.0, self.publish_diagnostics)
+        self.publish_status(advice=True)
         self.get_logger().info(
-            f'collecting static poses (method {p["method"]}, file {p["calibration_file"]}); '
-            'hold each pose still for 2 s, then call ~/calibrate')
+            f'collecting static poses (method {self.params["method"]}, file {self.path}); '
+            'hold each pose still for 2 s, follow ~/advice, then call ~/calibrate')
+
+    # -- parameters ------------------------------------------------------------------------
+    def _detector_settings(self):
+        p = self.params
+        return {name: p[name] or DEFAULTS[name]
+                for name in ('window_s', 'min_duration_s', 'trim_s', 'threshold_factor')}
+
+    def _new_detector(self):
+        return OnlineStaticDetector(self.params['rate_hz'] or None,
+                                    use_gyro=self.params['use_gyro'],
+                                    gravity=self.params['gravity'],
+                                    **self._detector_settings())
+
+    def _make_directory(self, path):
+        make_directory(path, self.get_logger())
+
+    def _on_params(self, changes):
+        """Apply a runtime parameter change (called by the common mechanism)."""
+        if changes.get('threshold_factor', 0.0) and changes['threshold_factor'] < 1.0:
+            raise ParameterProblem("parameter 'threshold_factor' must be 0 or >= 1")
+        if 'calibration_file' in changes:
+            self.path = calibration_path(changes['calibration_file'])
+            self._make_directory(self.path)
+        if 'max_windows' in changes:
+            self.windows = deque(self.windows, maxlen=changes['max_windows'])
+        if set(changes) & {'window_s', 'min_duration_s', 'trim_s', 'threshold_factor',
+                           'use_gyro', 'rate_hz', 'gravity'}:
+            self.process_pending()
+            for window in self.detector.finish():
+                self._add(window, publish=False)
+            self.detector = self._new_detector()
+        if set(changes) & {'target_accuracy', 'method', 'gravity', 'max_weight_s',
+                           'max_windows'}:
+            self.publish_status(advice=True)
 
     # -- input -----------------------------------------------------------------------------
-    def _new_detector(self):
-        p = self.params
-        return OnlineStaticDetector(self.rate_hz, window_s=p['window_s'],
-                                    min_duration_s=p['min_duration_s'],
-                                    threshold_factor=p['threshold_factor'], trim_s=p['trim_s'])
-
     def on_temperature(self, msg):
         """
         Remember the latest temperature, °C.
 
         :param msg: sensor_msgs/Temperature.
         """
-        self.temperature = float(msg.temperature)
+        if math.isfinite(msg.temperature):
+            self.temperature = float(msg.temperature)
 
     def on_imu(self, msg):
         """
-        Feed one raw sample to the static-window detector.
+        Buffer one raw sample for the static-window detector.
 
         :param msg: sensor_msgs/Imu with raw linear_acceleration, m/s².
         """
-        a = msg.linear_acceleration
-        accel = (a.x, a.y, a.z)
-        if not all(map(math.isfinite, accel)):
+        a, w = msg.linear_acceleration, msg.angular_velocity
+        if not (math.isfinite(a.x) and math.isfinite(a.y) and math.isfinite(a.z)):
+            self._dropped += 1
             return
         t = stamp_seconds(msg.header.stamp)
         if t <= 0.0:                                            # unstamped: receive time
             t = self.get_clock().now().nanoseconds * 1e-9
-        if self.detector is None:
-            self._startup.append((t, accel, self.temperature))
-            if len(self._startup) < RATE_SAMPLES:
-                return
-            nominal, effective = measure_rate([s[0] for s in self._startup])
-            if effective is None:
-                self._startup = self._startup[-RATE_SAMPLES // 2:]
-                return
-            self.rate_hz = effective
-            self.detector = self._new_detector()
-            self.get_logger().info(f'sample rate {effective:.1f} Hz received (stamps '
-                                   f'{nominal:.1f} Hz apart: '
-                                   f'{max(0.0, 1.0 - effective / nominal):.0%} lost)')
-            buffered, self._startup = self._startup, []
-            for sample in buffered:
-                self._add(self.detector.update(*sample))
-            return
-        self._add(self.detector.update(t, accel, self.temperature))
+        if not self.frame_id:
+            self.frame_id = msg.header.frame_id
+        gyro_known = msg.angular_velocity_covariance[0] >= 0.0
+        self._pending.append((t, a.x, a.y, a.z) + ((w.x, w.y, w.z) if gyro_known
+                                                   else (math.nan,) * 3)
+                             + (self.temperature,))
+        if len(self._pending) >= CHUNK:
+            self.process_pending()
 
-    def _add(self, window):
+    def process_pending(self):
+        """Hand the buffered samples to the detector; keep and announce new windows."""
+        if not self._pending:
+            return
+        rows = np.array(self._pending, float)
+        self._pending = []
+        gyro = rows[:, 4:7]
+        windows = self.detector.feed(rows[:, 0], rows[:, 1:4], rows[:, 7],
+                                     gyro if np.all(np.isfinite(gyro)) else None)
+        for window in windows:
+            self._add(window, publish=False)
+        if windows:
+            self.publish_status(windows[-1], advice=True)
+
+    def _add(self, window, publish=True):
         if window is None:
             return
         self.windows.append(window)
-        self.publish_status(window)
+        if publish:
+            self.publish_status(window, advice=True)
 
     # -- progress --------------------------------------------------------------------------
-    def _arrays(self):
-        w = list(self.windows)
-        means = np.array([x['mean'] for x in w]).reshape(-1, 3)
+    def _arrays(self, extra=()):
+        w = list(self.windows) + list(extra)
+        means = np.array([x['mean'] for x in w], float).reshape(-1, 3)
         counts = np.array([x['count'] for x in w], float)
-        scatter = np.array([x['scatter'] for x in w]).reshape(-1, 3)
+        scatter = np.array([x['scatter'] for x in w], float).reshape(-1, 3)
         temps = np.array([x['temp'] for x in w], float)
-        cap = self.params['max_weight_s'] * (self.rate_hz or 1.0)
+        cap = self.params['max_weight_s'] * (self.detector.rate_hz or 100.0)
         weights = np.minimum(counts, cap)
         dof = np.maximum(counts - 1, 0)
         noise = np.sqrt(np.sum(dof[:, None] * scatter ** 2, axis=0) / max(dof.sum(), 1.0))
         return means, weights, temps, noise
 
-    def progress(self):
+    def _method(self):
+        return 'gn' if self.params['method'] == 'gn' else 'ml'
+
+    def compute_advice(self):
+        """Return the spec §5 advice dict for the windows so far (numbers finite or None)."""
+        means, weights, _, noise = self._arrays()
+        try:
+            advice = advise(means, weights, noise if len(means) else 0.03,
+                            self.params['gravity'], method=self._method(),
+                            target=self.params['target_accuracy'])
+        except (InputError, CalibrationError, ValueError, np.linalg.LinAlgError) as err:
+            self.get_logger().debug(f'advice skipped: {err}')
+            return None, None
+        return advice, advice.to_dict()
+
+    def progress(self, advice=None):
         """Summarise the collection as a dict (what ``~/status`` publishes)."""
-        g = self.params['gravity']
         means, weights, temps, noise = self._arrays()
-        d = {'windows': len(means), 'rate_hz': self.rate_hz, 'seq': self._seq,
+        d = {'windows': len(means), 'rate_hz': finite_or_none(self.detector.rate_hz, 3),
+             'seq': self._seq, 'dropped_samples': self._dropped,
              'coverage': {'min_eigenvalue_x3': 0.0, 'distinct_directions': 0},
-             'next_pose': 'z axis up', 'next_direction': [0.0, 0.0, 1.0],
-             'expected_uncertainty_decrease': None, 'last_window': None,
-             'temperature_c': None, 'last_calibration': self._last_result}
-        if len(means) == 0:
-            return d
-        advice = advise(means, weights, noise, g,
-                        method='gn' if self.params['method'] == 'gn' else 'ml')
-        eig, distinct = coverage(advice.directions)
-        pose = advice.next_pose
+             'predicted_accuracy': None, 'target_accuracy': self.params['target_accuracy'],
+             'enough': False, 'next_pose': None, 'last_window': None,
+             'temperature_c': None, 'last_calibration': self._last_result,
+             'model_gap': self._model_gap}
+        if self._advice is not None:
+            a = self._advice
+            d['predicted_accuracy'] = a['predicted_accuracy']
+            d['enough'] = a['enough']
+            d['next_pose'] = a['next_pose']
+        if advice is not None and advice.directions is not None and len(advice.directions):
+            eig, distinct = coverage(advice.directions)
+            d['coverage'] = {'min_eigenvalue_x3': round(eig, 4),
+                             'distinct_directions': int(distinct)}
+        elif self._last_coverage is not None:
+            d['coverage'] = self._last_coverage
         finite_t = temps[np.isfinite(temps)]
-        d['coverage'] = {'min_eigenvalue_x3': round(eig, 4), 'distinct_directions': distinct}
-        d['next_pose'] = pose.name if pose else 'enough'
-        d['next_direction'] = [round(float(v), 4) for v in pose.gravity_direction] if pose \
-            else None
-        d['predicted_accuracy'] = advice.to_dict()['predicted_accuracy']
         if len(finite_t):
             d['temperature_c'] = [round(float(finite_t.min()), 2),
                                   round(float(finite_t.max()), 2)]
+        self._last_coverage = d['coverage']
         return d
 
-    def publish_status(self, window=None):
+    _last_coverage = None
+
+    def publish_status(self, window=None, advice=False):
         """
-        Publish the progress JSON and, for a new window, log one line.
+        Publish ``~/status`` (and ``~/advice`` when asked); log one line for a new window.
 
         :param window: the window just finished, or None.
+        :param advice: recompute and publish the advice.
         """
         self._seq += 1
-        d = self.progress()
+        obj = None
+        if advice:
+            obj, self._advice = self.compute_advice()
+            if self._advice is not None:
+                self.advice_pub.publish(String(data=safe_json(self._advice)))
+        d = self.progress(obj)
         if window is not None:
             d['last_window'] = {
-                'mean': [round(float(v), 5) for v in window['mean']],
+                'mean': [finite_or_none(v, 5) for v in window['mean']],
                 'count': int(window['count']),
-                'duration_s': round(window['t_stop'] - window['t_start'], 3)}
-            c = d['coverage']
+                'duration_s': finite_or_none(window['t_stop'] - window['t_start'], 3)}
+            pose = d['next_pose']
+            acc = d['predicted_accuracy']
             self.get_logger().info(
                 f'window {d["windows"]}: mean ({", ".join(f"{v:.3f}" for v in window["mean"])})'
-                f' m/s2, {window["count"]} samples; coverage {c["min_eigenvalue_x3"]:.2f}, '
-                f'{c["distinct_directions"]} distinct directions; next: hold {d["next_pose"]}')
-        self.status_pub.publish(String(data=json.dumps(d)))
+                f' m/s2, {window["count"]} samples; predicted accuracy '
+                + (f'{acc:.4f} m/s2' if acc is not None else 'not yet')
+                + ('; enough' if d['enough'] else
+                   f'; next: {pose["name"]}' if pose else ''))
+        self.status_pub.publish(String(data=safe_json(d)))
+
+    def publish_diagnostics(self):
+        """Publish the collection state on /diagnostics (REP-107)."""
+        n = len(self.windows)
+        acc = self._advice['predicted_accuracy'] if self._advice else None
+        status = DiagnosticStatus(level=DiagnosticStatus.OK,
+                                  name=f'{self.get_name()}: collection',
+                                  hardware_id=self.params['sensor_id'] or self.frame_id)
+        status.message = f'{n} static windows' + (
+            f', predicted accuracy {acc:.4f} m/s2' if acc is not None else '')
+        if self.detector.rate_hz is None:
+            status.level = DiagnosticStatus.WARN
+            status.message = 'no imu/data_raw received yet'
+        if self._last_result is not None and not self._last_result['success']:
+            status.level = DiagnosticStatus.WARN
+            status.message += '; last calibration refused'
+        values = {'windows': n, 'rate_hz': finite_or_none(self.detector.rate_hz, 2),
+                  'dropped_non_finite_samples': self._dropped,
+                  'predicted_accuracy_m_s2': acc,
+                  'target_accuracy_m_s2': self.params['target_accuracy'],
+                  'calibration_file': self.path,
+                  'last_calibration': (self._last_result or {}).get('message', 'none')}
+        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self.diag_pub.publish(array)
 
     # -- services --------------------------------------------------------------------------
     def on_reset(self, request, response):
@@ -292,10 +408,11 @@ class CalibrationNode(Node):
         :return: the response, success=True.
         """
         n = len(self.windows)
+        self._pending = []
         self.windows.clear()
-        if self.detector is not None:
-            self.detector = self._new_detector()
-        self.publish_status()
+        self.detector.finish()
+        self._model_gap = None
+        self.publish_status(advice=True)
         response.success = True
         response.message = f'cleared {n} windows'
         self.get_logger().info(response.message)
@@ -305,22 +422,37 @@ class CalibrationNode(Node):
         """
         Solve with the collected windows; save only a sound calibration.
 
+        The window being held right now counts too. The model-gap check runs after the
+        response (one-shot timer) and lands on ``~/status``.
+
         :param request: std_srvs/Trigger request (empty).
         :param response: std_srvs/Trigger response.
-        :return: the response: success and the key figures, or the reason for refusal.
+        :return: the response: success, the key figures and the predicted accuracy, or
+            the reason for refusal.
         """
-        if self.detector is not None:
-            self._add(self.detector.flush())
+        self.process_pending()
+        for window in self.detector.release():
+            self._add(window, publish=False)
+        held = self.detector.peek()
+        accuracy = None
         try:
-            response.message = self.solve()
-            response.success = True
-            self.get_logger().info(response.message)
+            cal, msg = self.solve(held)
+            accuracy = cal.predicted_accuracy
+            response.success, response.message = True, msg
+            self.get_logger().info(msg)
         except CalibrationError as err:
+            cal = getattr(err, 'calibration', None)
+            accuracy = None if cal is None else cal.predicted_accuracy
             response.success = False
             response.message = f'refused: {err}'
             self.get_logger().warning(response.message)
-        self._last_result = {'success': response.success, 'message': response.message}
+        self._last_result = {'success': response.success, 'message': response.message,
+                             'predicted_accuracy': finite_or_none(accuracy),
+                             'max_predicted_error': self.params['max_predicted_error']}
+        self._model_gap = None
         self.publish_status()
+        self._schedule_model_gap(held, None if cal is None or cal.thermal is None
+                                 else len(cal.thermal.usable))
         return response
 
     def _thermal_wanted(self, temps, mode=None):
@@ -336,80 +468,222 @@ class CalibrationNode(Node):
                                   return_counts=True)
         return int(np.sum(counts >= MIN_WINDOWS_PER_BAND)) >= 2
 
-    def solve(self):
-        """Fit, check and save; return the success message or raise CalibrationError."""
+    def gyro_bias(self, windows):
+        """
+        Gyroscope bias from the static windows: their gyro means weighted by samples.
+
+        :param windows: window dicts.
+        :return: (3,) rad/s, or None when no window carries the gyro.
+        """
+        rows = [(w['gyro_mean'], w['count']) for w in windows
+                if w.get('gyro_mean') is not None and np.all(np.isfinite(w['gyro_mean']))]
+        if not rows:
+            return None
+        means = np.array([r[0] for r in rows], float)
+        weights = np.array([r[1] for r in rows], float)
+        return weights @ means / weights.sum()
+
+    def solve(self, held=()):
+        """
+        Fit, check and save.
+
+        :param held: windows of the pose being held now (not yet finished).
+        :return: (Calibration, success message).
+        :raises CalibrationError: the reason for refusal (``.calibration`` attached when
+            a fit was made).
+        """
         p = self.params
         g = p['gravity']
-        means, weights, temps, noise = self._arrays()
+        windows = list(self.windows) + list(held)
+        means, weights, temps, noise = self._arrays(held)
         if len(means) == 0:
             raise CalibrationError('no static windows collected yet: hold the sensor still '
                                    'in at least 10 different orientations, 2 s each')
         thermal = self._thermal_wanted(temps)
+        extra = {}
+        gyro = [w.get('gyro_mean') for w in windows]
+        if _accepts(calibrate, 'gyro_means') and all(
+                v is not None and np.all(np.isfinite(v)) for v in gyro):
+            extra['gyro_means'] = np.array(gyro, float).reshape(-1, 3)   # per band too
         try:
             cal = calibrate(means, gravity=g, method=p['method'], weights=weights,
                             temps=temps if thermal else None, thermal=thermal,
                             band_width_c=p['band_width_c'], noise_std=noise,
-                            source=f'ros node {self.get_fully_qualified_name()}')
+                            source=f'ros node {self.get_fully_qualified_name()}', **extra)
         except InputError as err:
             raise CalibrationError(str(err)) from None
         except np.linalg.LinAlgError as err:
             raise CalibrationError(f'the fit failed numerically ({err}): '
                                    'add more distinct poses') from None
+        self._complete(cal, windows, temps)
+
+        def refuse(text):
+            err = CalibrationError(text)
+            err.calibration = cal
+            return err
+
         if not cal.converged:
-            raise CalibrationError(f'the {p["method"]} fit did not converge in '
-                                   f'{cal.iterations} iterations: add more distinct poses')
+            raise refuse(f'the {p["method"]} fit did not converge in {cal.iterations} '
+                         'iterations: add more distinct poses')
         expected = max(float(np.sqrt(np.mean(noise ** 2) / np.median(weights))),
                        MIN_WINDOW_NOISE)
         if not cal.residual_rms <= p['max_residual_ratio'] * expected:
-            raise CalibrationError(
+            raise refuse(
                 f'gravity-norm residual {cal.residual_rms:.4f} m/s2 is '
                 f'{cal.residual_rms / expected:.0f}x the expected window noise '
                 f'{expected:.4f} m/s2 (limit {p["max_residual_ratio"]:g}x): the sensor moved '
                 'during the poses or the model does not fit this sensor'
                 + ('' if thermal or not self._thermal_wanted(temps, 'auto') else
                    '; the windows fill two temperature bands: try thermal:=auto')
-                + self._diagnose_hint(prefix='. '))
+                + '; the model-gap check follows on ~/status')
+        acc = cal.predicted_accuracy
+        if acc is None or not acc <= p['max_predicted_error']:
+            raise refuse(self._accuracy_reason(cal))
         problems = cal.physical_problems(p['max_scale_error'], p['max_cross_axis'],
                                          p['max_bias_g'])
         if problems:
-            raise CalibrationError('not physical: ' + '; '.join(problems)
-                                   + ' (are the readings in m/s2?)')
+            raise refuse('not physical: ' + '; '.join(problems)
+                         + ' (are the readings in m/s2?)')
         bands = 0 if cal.thermal is None else len(cal.thermal.usable)
+        self._keep_level_trim(cal)
+        self._make_directory(self.path)
         try:
-            save_calibration(cal, p['calibration_file'])
-        except OSError as err:
-            raise CalibrationError(f'cannot write {p["calibration_file"]}: {err}') from None
+            save_calibration(cal, self.path)
+        except (OSError, InputError) as err:
+            raise refuse(f'cannot write {self.path}: {err}') from None
         with np.printoptions(precision=5, suppress=True):
             msg = (f'{cal.method} calibration from {len(means)} windows saved to '
-                   f'{p["calibration_file"]}: scale {np.round(cal.scale, 5).tolist()}, '
+                   f'{self.path}: predicted accuracy {acc:.4f} m/s2 (limit '
+                   f'{p["max_predicted_error"]:g}), scale {np.round(cal.scale, 5).tolist()}, '
                    f'bias {np.round(cal.bias, 4).tolist()} m/s2, non-orthogonality '
                    f'{np.round(cal.nonorthogonality_deg, 3).tolist()} deg (xy, xz, yz), '
                    f'residual {cal.residual_rms:.4f} m/s2, thermal bands {bands}')
-        return msg + self._diagnose_hint(prefix='. ')
+        if cal.gyro_bias is not None:
+            msg += f', gyro bias {np.round(cal.gyro_bias, 5).tolist()} rad/s'
+        self.record_history(cal, windows, weights, temps)
+        return cal, msg
 
-    def _diagnose_hint(self, prefix=''):
-        """Return one sentence when the model-gap check names an effect the method lacks."""
-        w = list(self.windows)
-        count = np.array([x['count'] for x in w], int)
-        windows = StaticWindows(
-            start=np.zeros(len(w), int), stop=count,
-            mean=np.array([x['mean'] for x in w]).reshape(-1, 3),
-            scatter=np.array([x['scatter'] for x in w]).reshape(-1, 3), count=count,
-            t_mid=np.array([x['t_mid'] for x in w], float),
-            temp=np.array([x['temp'] for x in w], float))
-        baseline = 'gn' if self.params['method'] == 'gn' else 'ml'
+    def history_path(self):
+        """Return the history database path ('' = next to the calibration file)."""
+        value = self.params['history_file']
+        if value:
+            return os.path.expanduser(value)
+        return os.path.join(os.path.dirname(os.path.abspath(self.path)), 'history.sqlite')
+
+    def record_history(self, cal, windows, weights, temps):
+        """Record a saved calibration and its windows (a failure is logged, not fatal)."""
+        if not self.params['history']:
+            return
+        import sqlite3
+        from ..dataio.history import History
+        sensor = cal.sensor_id or 'imu'
+        now = self.get_clock().now().nanoseconds * 1e-9
+        times = np.array([w['t_mid'] for w in windows], float)
+        if not np.all(np.isfinite(times) & (times > 1e9)):     # device clock: use now
+            times = np.full(len(windows), now)
+        gyro = np.array([w['gyro_mean'] if w.get('gyro_mean') is not None
+                         else np.full(3, np.nan) for w in windows], float).reshape(-1, 3)
         try:
-            report = diagnose_windows(windows, baseline, self.params['gravity'], replicates=0)
-        except (CalibrationError, ValueError, np.linalg.LinAlgError) as err:
+            with History(self.history_path()) as history:
+                history.add_windows(sensor, np.array([w['mean'] for w in windows], float),
+                                    temps, weights, times, gyro)
+                history.add_calibration(sensor, cal, windows=len(windows))
+        except (InputError, sqlite3.Error, OSError, ValueError) as err:
+            self.get_logger().warning(f'history not recorded: {err}')
+
+    def _keep_level_trim(self, cal):
+        """Carry the level trim of the file being replaced over (the mounting is the same)."""
+        if cal.level_roll_pitch_rad is not None or not os.path.exists(self.path):
+            return
+        from ..dataio.calibration_file import load_calibration
+        try:
+            cal.level_roll_pitch_rad = load_calibration(self.path).level_roll_pitch_rad
+        except InputError:
+            pass
+
+    def _complete(self, cal, windows, temps):
+        """Fill what the core leaves to the caller: accuracy, gyro bias, range, sensor id."""
+        if cal.predicted_accuracy is None and cal.covariance is not None:
+            from ..core.accuracy import predicted_accuracy
+            try:
+                acc = float(predicted_accuracy(cal.T, cal.covariance, cal.gravity))
+            except (ValueError, np.linalg.LinAlgError):
+                acc = math.inf
+            cal.predicted_accuracy = acc if math.isfinite(acc) else None
+        if cal.gyro_bias is None:
+            cal.gyro_bias = self.gyro_bias(windows)
+        finite_t = temps[np.isfinite(temps)]
+        if cal.temperature_range_c is None and len(finite_t):
+            cal.temperature_range_c = (float(finite_t.min()), float(finite_t.max()))
+        if cal.sensor_id is None:
+            cal.sensor_id = self.params['sensor_id'] or self.frame_id or None
+
+    def _accuracy_reason(self, cal):
+        limit = self.params['max_predicted_error']
+        acc = cal.predicted_accuracy
+        text = ('predicted accuracy unknown (the fit has no covariance)' if acc is None else
+                f'predicted accuracy {acc:.4f} m/s2 is worse than max_predicted_error '
+                f'{limit:g} m/s2')
+        try:
+            from ..core.accuracy import worst_faces
+            faces = worst_faces(cal.T, cal.covariance, cal.gravity, limit=limit)
+        except (ValueError, TypeError, np.linalg.LinAlgError):
+            faces = []
+        if faces:
+            text += '; missing: ' + ', '.join(f'{name} ({err:.3f} m/s2)'
+                                              for name, _, err in faces[:3])
+        if self._advice and self._advice.get('next_pose'):
+            text += f'; hold next: {self._advice["next_pose"]["name"]}'
+        return text
+
+    # -- model-gap check (off the service's critical path) ------------------------------
+    def _schedule_model_gap(self, held, thermal_bands):
+        if self._gap_timer is not None:
+            self.destroy_timer(self._gap_timer)
+        windows = list(self.windows) + list(held)
+        method = self._method()
+
+        def run_once():
+            self.destroy_timer(self._gap_timer)
+            self._gap_timer = None
+            self._model_gap = self.model_gap(windows, method, thermal_bands)
+            self.publish_status()
+        self._gap_timer = self.create_timer(0.01, run_once)
+
+    def model_gap(self, windows, baseline, thermal_bands=None):
+        """
+        Run the model-gap check on the windows; return a dict for ``~/status``.
+
+        Effects the calibration already models (the temperature tables when it has
+        usable bands) are not reported as missing.
+        """
+        from ..core.diagnose import diagnose_windows
+        if not windows:
+            return None
+        count = np.array([x['count'] for x in windows], int)
+        sw = StaticWindows(
+            start=np.zeros(len(windows), int), stop=count,
+            mean=np.array([x['mean'] for x in windows], float).reshape(-1, 3),
+            scatter=np.array([x['scatter'] for x in windows], float).reshape(-1, 3),
+            count=count, t_mid=np.array([x['t_mid'] for x in windows], float),
+            temp=np.array([x['temp'] for x in windows], float))
+        try:
+            report = diagnose_windows(sw, baseline, self.params['gravity'], replicates=0)
+        except (CalibrationError, InputError, ValueError, np.linalg.LinAlgError) as err:
             self.get_logger().debug(f'model-gap check skipped: {err}')
-            return ''
-        if not report.missing_effects:
-            return ''
-        details = '; '.join(f'{step["effect"]} ({step["evidence"]["magnitude"]})'
-                            for step in report.steps)
-        return (f'{prefix}Note: the data show {details}, which the {self.params["method"]} '
-                f'model does not include (gap {report.gap_before:.1f} -> '
-                f'{report.gap_after:.1f})')
+            return {'missing_effects': [], 'note': f'skipped: {err}'}
+        steps = [s for s in report.steps
+                 if not (thermal_bands and s['effect'] in THERMAL_EFFECTS)]
+        gap = {'baseline': baseline, 'missing_effects': [s['effect'] for s in steps],
+               'gap_before': finite_or_none(report.gap_before, 3),
+               'gap_after': finite_or_none(report.gap_after, 3), 'note': ''}
+        if steps:
+            details = '; '.join(f'{s["effect"]} ({s["evidence"]["magnitude"]})'
+                                for s in steps)
+            gap['note'] = (f'the data show {details}, which the {self.params["method"]} '
+                           'model does not include')
+            self.get_logger().info(f'model-gap check: {gap["note"]}')
+        return gap
 
 
 def main(args=None):

@@ -17,11 +17,13 @@ The older per-value checks (:func:`declare`, :func:`number`, :func:`integer`,
 """
 
 import math
+import os
 import sys
 
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType, SetParametersResult)
 import rclpy
+import rclpy.executors
 from rclpy.executors import ExternalShutdownException
 from rclpy.parameter import Parameter
 
@@ -372,6 +374,45 @@ def declare_parameters(node, specs, on_change=None):
     return values
 
 
+def calibration_path(value):
+    """
+    Resolve a ``calibration_file`` parameter: '' means the default, ``~`` is expanded.
+
+    :param value: value as read.
+    :return: the path to use ($ROS_HOME/accel_calib_ros/calibration.yaml by default).
+    """
+    if value:
+        return os.path.expanduser(value)
+    from ..dataio.calibration_file import default_calibration_path
+    return default_calibration_path()
+
+
+def make_directory(path, logger=None):
+    """
+    Create the directory of ``path`` if missing; log (not raise) when it cannot be made.
+
+    :param path: a file path.
+    :param logger: rclpy logger for the warning, or None.
+    :return: whether the directory exists now.
+    """
+    folder = os.path.dirname(os.path.abspath(path))
+    try:
+        os.makedirs(folder, exist_ok=True)
+        return True
+    except OSError as err:
+        if logger is not None:
+            logger.warning(f'cannot create {folder}: {err}')
+        return False
+
+
+def _spin_quietly(executor):
+    """Spin until shutdown; the end of the context is not an error here."""
+    try:
+        executor.spin()
+    except (ExternalShutdownException, RuntimeError, KeyboardInterrupt):
+        pass
+
+
 def run(node_class, logger_name, args=None):
     """
     Run a node until Ctrl-C; exit status 2 on a bad parameter.
@@ -383,9 +424,25 @@ def run(node_class, logger_name, args=None):
     rclpy.init(args=args)
     node = None
     code = 0
+    control = thread = None
     try:
         node = node_class()
-        rclpy.spin(node)
+        side = list(getattr(node, 'side_nodes', ()))
+        if side:
+            # The node's hot path lives on side nodes: they get the main thread and an
+            # executor of their own; the node itself (parameters, services, timers) is
+            # spun in a background thread.
+            import threading
+            control = rclpy.executors.SingleThreadedExecutor()
+            control.add_node(node)
+            thread = threading.Thread(target=_spin_quietly, args=(control,), daemon=True)
+            thread.start()
+            main = rclpy.executors.SingleThreadedExecutor()
+            for extra in side:
+                main.add_node(extra)
+            main.spin()
+        else:
+            rclpy.spin(node)
     except ParameterProblem as err:
         rclpy.logging.get_logger(logger_name).error(str(err))
         code = 2
@@ -397,6 +454,10 @@ def run(node_class, logger_name, args=None):
         if rclpy.ok():
             raise
     finally:
+        if control is not None:            # stop the background spin before teardown
+            rclpy.try_shutdown()
+            control.shutdown(timeout_sec=2.0)
+            thread.join(timeout=2.0)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

@@ -3,38 +3,76 @@ ROS 2 node ``accel_correction``: apply the saved calibration to the live IMU str
 
 Subscribes to ``imu/data_raw`` (sensor_msgs/Imu) and ``imu/temperature``
 (sensor_msgs/Temperature) and publishes ``imu/corrected`` (sensor_msgs/Imu): the same
-message with ``linear_acceleration = Calibration.correct(raw, latest temperature)`` and
-``linear_acceleration_covariance`` = the calibration's per-sample covariance (row-major,
-(m/s²)²). Every other field (header, orientation and its covariance, angular velocity
-and its covariance) is passed through untouched.
+message with
+
+- ``linear_acceleration = L · Calibration.correct(raw, latest temperature)`` and its
+  covariance the calibration's per-sample covariance (row-major, (m/s²)²);
+- ``angular_velocity = L · (raw − gyro bias)`` when the calibration carries a gyro
+  bias (spec §6; per temperature band when it has them); its covariance is what is
+  left: the driver's noise covariance as it came. Without a gyro bias the rate passes
+  through and, when the driver reports a covariance, the datasheet zero-rate offset
+  (:data:`UNCALIBRATED_GYRO_BIAS_STD`)² is added to its diagonal;
+- ``L`` the level trim (``level_roll_pitch_rad`` in the file, measured by ``~/level``),
+  identity without one. The orientation and its covariance pass through untouched (the
+  driver sends identity with ``orientation_covariance[0] = -1``), as does the header.
 
 Hot reload: ``calibration_file`` is checked every ``reload_period_s``; when its
-(mtime, size, inode) changes it is loaded, and only a valid file replaces the
-calibration in use. Without any calibration the data pass through unchanged with a
-large diagonal covariance of (:data:`UNCALIBRATED_STD`)² per axis, so downstream nodes
-keep running but can tell the acceleration is uncalibrated (REP-145's -1 would claim
-it is not reported at all).
+(mtime, size, inode) changes it is read with the one validating loader
+(:func:`dataio.calibration_file.load_calibration`), and only a valid file replaces the
+calibration in use: a bad file gives one logged error, the node keeps the last good
+calibration and ``/diagnostics`` says so. Without any calibration the data pass
+through unchanged with a large diagonal covariance of (:data:`UNCALIBRATED_STD`)² per
+axis, and ``/diagnostics`` warns. A message whose output would hold a non-finite
+number is dropped and counted, never published. Outside the calibrated temperature
+range (plus ``temperature_margin_c``) a throttled warning and ``/diagnostics`` say so.
+
+``~/level`` (std_srvs/Trigger): with the robot resting level, the mean of the last
+``level_duration_s`` of corrected acceleration gives the roll and pitch of the sensor
+on the robot (:mod:`core.level`); they are stored in the calibration file (atomically)
+and applied from then on.
+
+Imports neither scipy nor matplotlib (kept lean: see bench/bench_correction.py).
 """
 
+from collections import deque
 import math
 import os
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data, QoSProfile,
                        ReliabilityPolicy)
 from sensor_msgs.msg import Imu, Temperature
+from std_srvs.srv import Trigger
 
-from .calibration import calibration_path
-from .common import declare, number, run
-from ..core.errors import InputError
-from ..dataio.calibration_file import default_calibration_path, load_calibration
+from .common import calibration_path, declare_parameters, Param, run
+from ..core.errors import CalibrationError, InputError
+from ..dataio.calibration_file import load_calibration, save_calibration
 
 UNCALIBRATED_STD = 0.5
 """Per-axis standard deviation reported while no calibration is loaded, m/s²."""
 UNCALIBRATED_COVARIANCE = np.diag([UNCALIBRATED_STD ** 2] * 3).reshape(9)
+UNCALIBRATED_GYRO_BIAS_STD = math.radians(2.5)
+"""Zero-rate offset left in an uncorrected gyro, rad/s (MPU-9250 datasheet ±5 °/s as 2σ)."""
 QUEUE_DEPTH = 100
 """Subscription and publisher queue depth: 0.1 s at 1 kHz, rides out a file reload."""
+LEVEL_BUFFER = 5000
+"""Raw samples kept for ``~/level`` (5 s at 1 kHz)."""
+WARN_PERIOD_S = 30.0
+"""Throttle of the repeated warnings (temperature outside the calibrated range)."""
+
+
+def _matrix_tuple(m):
+    return tuple(tuple(float(v) for v in row) for row in m)
+
+
+def _apply(m, x, y, z):
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = m
+    return (r00 * x + r01 * y + r02 * z,
+            r10 * x + r11 * y + r12 * z,
+            r20 * x + r21 * y + r22 * z)
 
 
 class Corrector:
@@ -47,16 +85,32 @@ class Corrector:
     def __init__(self, cal=None):
         self.cal = cal
         if cal is None:
-            self.R = None
+            self.M = None
+            self.L = None
             self.bias = (0.0, 0.0, 0.0)
             self.covariance = UNCALIBRATED_COVARIANCE.copy()
+            self.gyro_bias = None
         else:
-            self.R = tuple(tuple(float(v) for v in row) for row in np.linalg.inv(cal.T))
+            L = np.asarray(cal.level_rotation(), float)
+            R = np.linalg.inv(np.asarray(cal.T, float))
+            self.M = _matrix_tuple(L @ R)
+            self.L = None if np.array_equal(L, np.eye(3)) else _matrix_tuple(L)
             self.bias = tuple(float(v) for v in cal.bias)
-            self.covariance = np.ascontiguousarray(
-                cal.acceleration_covariance(), dtype=np.float64).reshape(9)
+            cov = L @ np.asarray(cal.acceleration_covariance(), float) @ L.T
+            self.covariance = np.ascontiguousarray(cov, dtype=np.float64).reshape(9)
+            self.gyro_bias = None if cal.gyro_bias is None else \
+                tuple(float(v) for v in cal.gyro_bias)
+            if not (np.all(np.isfinite(self.covariance)) and np.all(np.isfinite(self.M))
+                    and all(map(math.isfinite, self.bias))):
+                raise InputError('the calibration gives non-finite corrections')
         self._drift_temp = None
         self._coef = None
+        self.cov_key = None         # incoming covariances last judged (bytes) ...
+        self.wcov = None            # ... the angular-velocity covariance to publish for
+        self.cov_finite = True      # them (None = as it came), and whether all are finite
+        self._gyro_temp = None
+        self._banded_gyro = cal is not None and cal.thermal is not None and \
+            cal.thermal.gyro_bias(np.array([25.0])) is not None
 
     def coefficients(self, temp):
         """Drift (quadratic, linear, offset) per axis at ``temp`` °C, or None (no drift)."""
@@ -66,13 +120,14 @@ class Corrector:
             return None
         if temp != self._drift_temp:      # temperature changes far slower than samples
             quad, lin, off = cal.thermal.coefficients(np.array([temp]))
-            self._coef = tuple(zip(quad[0].tolist(), lin[0].tolist(), off[0].tolist()))
+            coef = tuple(zip(quad[0].tolist(), lin[0].tolist(), off[0].tolist()))
+            self._coef = coef if all(map(math.isfinite, sum(coef, ()))) else None
             self._drift_temp = temp
         return self._coef
 
     def correct(self, x, y, z, temp):
-        """Corrected (x, y, z) m/s² for one raw sample at ``temp`` °C."""
-        if self.R is None:
+        """Corrected (and levelled) (x, y, z) m/s² for one raw sample at ``temp`` °C."""
+        if self.M is None:
             return x, y, z
         bx, by, bz = self.bias
         coef = self.coefficients(temp)
@@ -81,11 +136,47 @@ class Corrector:
             bx += qx * x * x + lx * x + ox
             by += qy * y * y + ly * y + oy
             bz += qz * z * z + lz * z + oz
-        x, y, z = x - bx, y - by, z - bz
-        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = self.R
-        return (r00 * x + r01 * y + r02 * z,
-                r10 * x + r11 * y + r12 * z,
-                r20 * x + r21 * y + r22 * z)
+        return _apply(self.M, x - bx, y - by, z - bz)
+
+    def gyro_bias_at(self, temp):
+        """Return the gyro bias (3,) rad/s to subtract at ``temp`` °C, or None."""
+        if not self._banded_gyro or not math.isfinite(temp):
+            return self.gyro_bias
+        if temp != self._gyro_temp:
+            bias = self.cal.gyro_bias_at(np.array([temp]))[0]
+            self._gyro_at = tuple(float(v) for v in bias) \
+                if np.all(np.isfinite(bias)) else self.gyro_bias
+            self._gyro_temp = temp
+        return self._gyro_at
+
+    def correct_gyro(self, x, y, z, temp):
+        """Angular rate (x, y, z) rad/s without the bias, in the levelled frame."""
+        bias = self.gyro_bias_at(temp)
+        if bias is not None:
+            x, y, z = x - bias[0], y - bias[1], z - bias[2]
+        if self.L is not None:
+            return _apply(self.L, x, y, z)
+        return x, y, z
+
+    def gyro_covariance(self, cov):
+        """
+        Return the angular-velocity covariance to publish for the driver's ``cov`` (9,).
+
+        None (publish it as it came) when the driver reports none (``[0] = -1``) or
+        unknown (all zeros), or when the gyro bias is removed and no level trim rotates
+        it; else what is left (plus the uncorrected zero-rate offset), rotated by the
+        level trim.
+        """
+        c = np.asarray(cov, float).reshape(3, 3)
+        if (self.gyro_bias is not None and self.L is None) or c[0, 0] < 0.0 \
+                or not np.any(c):
+            return None
+        if self.gyro_bias is None:
+            c = c + np.eye(3) * UNCALIBRATED_GYRO_BIAS_STD ** 2
+        if self.L is not None:
+            L = np.asarray(self.L)
+            c = L @ c @ L.T
+        return np.ascontiguousarray(c, dtype=np.float64).reshape(9)
 
 
 def file_key(path):
@@ -97,23 +188,43 @@ def file_key(path):
     return st.st_mtime_ns, st.st_size, st.st_ino
 
 
+PARAMS = [
+    Param('calibration_file', '',
+          "calibration YAML to apply ('' = $ROS_HOME/accel_calib_ros/calibration.yaml); "
+          're-read whenever it changes'),
+    Param('reload_period_s', 0.25, 'how often the file is checked for changes, s', low=0.0,
+          low_open=True, high=60.0),
+    Param('temperature_margin_c', 2.0,
+          'warn when the temperature leaves the calibrated range by more than this, degC',
+          low=0.0, high=100.0),
+    Param('level_duration_s', 2.0, 'seconds of samples ~/level averages', low=0.1,
+          high=5.0),
+    Param('diagnostics_period_s', 1.0,
+          '/diagnostics period, s (checked every reload_period_s)', low=0.1, high=60.0,
+          read_only=True),
+]
+
+
 class CorrectionNode(Node):
     """Correct the raw accelerometer stream with the calibration file, reloading it live."""
 
     def __init__(self, **kwargs):
         super().__init__('accel_correction', **kwargs)
-        self.path = calibration_path(declare(
-            self, 'calibration_file', default_calibration_path(),
-            "calibration YAML to apply ('' = $ROS_HOME/accel_calib_ros/calibration.yaml)"))
-        period = number('reload_period_s', declare(
-            self, 'reload_period_s', 0.25, 'how often the file is checked for changes, s'),
-            0.0, 60.0, True)
+        self.params = declare_parameters(self, PARAMS, self._on_params)
+        self.path = calibration_path(self.params['calibration_file'])
         self.corrector = Corrector(None)
         self.temperature = float('nan')
         self._key = ()              # file key last acted on (loaded or rejected); () = never
+        self._file_problem = ''     # why the file on disk is not the one in use
         self._warned_missing = False
         self._warned_no_temp = False
         self._samples = 0
+        self._dropped = 0           # messages not published: a non-finite field
+        self._last_warn = {}
+        self._temp_problem = ''
+        self._rate_hz = None        # messages per second, measured at each diagnostics tick
+        self._rate_mark = (None, 0)
+        self._recent = deque(maxlen=LEVEL_BUFFER)   # (t, ax, ay, az, temp) for ~/level
         self.check_file(initial=True)
 
         pub_qos = QoSProfile(depth=QUEUE_DEPTH, history=HistoryPolicy.KEEP_LAST,
@@ -122,32 +233,89 @@ class CorrectionNode(Node):
         sub_qos = QoSProfile(depth=QUEUE_DEPTH, history=qos_profile_sensor_data.history,
                              reliability=qos_profile_sensor_data.reliability,
                              durability=qos_profile_sensor_data.durability)
-        self.pub = self.create_publisher(Imu, 'imu/corrected', pub_qos)
-        self.create_subscription(Imu, 'imu/data_raw', self.on_imu, sub_qos)
+        # The stream runs on a second node with nothing else to wait on (no parameter
+        # services, timers or other subscriptions): main() spins it on its own
+        # executor, so each message costs no more executor work than a bare relay.
+        self.stream = Node('accel_correction_stream', context=kwargs.get('context'),
+                           start_parameter_services=False,
+                           parameter_overrides=[Parameter('start_type_description_service',
+                                                          value=False)])
+        self.pub = self.stream.create_publisher(Imu, 'imu/corrected', pub_qos)
+        self.stream.create_subscription(Imu, 'imu/data_raw', self.on_imu, sub_qos)
+        self.side_nodes = [self.stream]
+        self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_subscription(Temperature, 'imu/temperature', self.on_temperature, sub_qos)
-        self.create_timer(period, self.check_file)
+        self.create_service(Trigger, '~/level', self.on_level)
+        # One timer for both chores (fewer entities for the executor to wait on).
+        self._next_diagnostics = 0.0
+        self._reload_timer = self.create_timer(self.params['reload_period_s'], self._tick)
 
+    def _on_params(self, changes):
+        """Apply a runtime parameter change (called by the common mechanism)."""
+        if 'calibration_file' in changes:
+            self.path = calibration_path(changes['calibration_file'])
+            self._key = ()
+            self._warned_missing = False
+            self.check_file()
+        if 'reload_period_s' in changes:
+            self.destroy_timer(self._reload_timer)
+            self._reload_timer = self.create_timer(changes['reload_period_s'], self._tick)
+
+    def _tick(self):
+        """Check the file; publish /diagnostics when its period has passed."""
+        self.check_file()
+        now = self.get_clock().now().nanoseconds * 1e-9
+        if now >= self._next_diagnostics:
+            self._next_diagnostics = now + self.params['diagnostics_period_s']
+            self.publish_diagnostics()
+
+    # -- the stream ------------------------------------------------------------------------
     def on_temperature(self, msg):
         """
-        Remember the latest temperature, °C.
+        Remember the latest temperature, °C; warn outside the calibrated range.
 
         :param msg: sensor_msgs/Temperature.
         """
-        self.temperature = msg.temperature
+        temp = msg.temperature
+        self.temperature = temp if math.isfinite(temp) else float('nan')
+        self._check_range()
 
     def on_imu(self, msg):
         """
-        Correct one sample and republish it.
+        Correct one sample and republish it (dropped if any output is not finite).
 
         :param msg: sensor_msgs/Imu from the driver (modified in place and published).
         """
         c = self.corrector
+        temp = self.temperature
         self._samples += 1
         a = msg.linear_acceleration
-        a.x, a.y, a.z = c.correct(a.x, a.y, a.z, self.temperature)
+        w = msg.angular_velocity
+        o = msg.orientation
+        self._recent.append((a.x, a.y, a.z, temp))
+        a.x, a.y, a.z = x, y, z = c.correct(a.x, a.y, a.z, temp)
+        w.x, w.y, w.z = gx, gy, gz = c.correct_gyro(w.x, w.y, w.z, temp)
         msg.linear_acceleration_covariance = c.covariance
+        # The incoming covariances rarely change: judge them once per distinct value
+        # (cached on the corrector, so a new calibration starts afresh).
+        key = msg.orientation_covariance.tobytes() + msg.angular_velocity_covariance.tobytes()
+        if key != c.cov_key:
+            wcov = c.gyro_covariance(msg.angular_velocity_covariance)
+            c.cov_finite = bool(np.all(np.isfinite(msg.orientation_covariance)) and np.all(
+                np.isfinite(msg.angular_velocity_covariance if wcov is None else wcov)))
+            c.wcov, c.cov_key = wcov, key
+        if c.wcov is not None:
+            msg.angular_velocity_covariance = c.wcov
+        check = x + y + z + gx + gy + gz + o.x + o.y + o.z + o.w
+        if check - check != 0.0 or not c.cov_finite:      # NaN or infinite somewhere
+            self._dropped += 1
+            if self._dropped == 1 or self._dropped % 1000 == 0:
+                self.get_logger().warning(
+                    f'dropped {self._dropped} message(s) with a non-finite value')
+            return
         self.pub.publish(msg)
 
+    # -- the calibration file ----------------------------------------------------------------
     def check_file(self, initial=False):
         """
         Load the calibration file when it changed; keep the old one if it is bad.
@@ -162,12 +330,14 @@ class CorrectionNode(Node):
         log = self.get_logger()
         if key is None:
             if self.corrector.cal is None:
+                self._file_problem = f'no calibration file {self.path}'
                 if not self._warned_missing:
                     log.warning(f'no calibration file {self.path}: passing the raw '
                                 'acceleration through, covariance '
                                 f'({UNCALIBRATED_STD} m/s2)^2 per axis, until one appears')
                     self._warned_missing = True
             else:
+                self._file_problem = f'calibration file {self.path} disappeared'
                 log.warning(f'calibration file {self.path} disappeared: keeping the '
                             'calibration loaded before')
             return
@@ -175,18 +345,28 @@ class CorrectionNode(Node):
             cal = load_calibration(self.path)
             corrector = Corrector(cal)
         except (InputError, np.linalg.LinAlgError, ValueError) as err:
+            self._file_problem = f'bad calibration file: {err}'
             log.error(f'ignoring calibration file {self.path}: {err}; '
                       + ('keeping the previous calibration' if self.corrector.cal is not None
                          else 'still passing the raw acceleration through'))
             return
+        self._use(corrector, 'loaded' if initial else 'reloaded')
+
+    def _use(self, corrector, verb):
         self.corrector = corrector
+        self._file_problem = ''
+        cal = corrector.cal
         std = np.sqrt(np.diag(cal.acceleration_covariance()))
-        log.info(f'{"loaded" if initial else "reloaded"} {cal.method} calibration '
-                 f'{self.path} (created {cal.created}, scale '
-                 f'{np.round(cal.scale, 5).tolist()}, bias {np.round(cal.bias, 4).tolist()} '
-                 f'm/s2, thermal bands '
-                 f'{0 if cal.thermal is None else len(cal.thermal.usable)}, '
-                 f'per-axis std {np.round(std, 4).tolist()} m/s2)')
+        acc = cal.predicted_accuracy
+        self.get_logger().info(
+            f'{verb} {cal.method} calibration {self.path} (created {cal.created}, scale '
+            f'{np.round(cal.scale, 5).tolist()}, bias {np.round(cal.bias, 4).tolist()} '
+            f'm/s2, thermal bands {0 if cal.thermal is None else len(cal.thermal.usable)}, '
+            f'per-axis std {np.round(std, 4).tolist()} m/s2'
+            + (f', predicted accuracy {acc:.4f} m/s2' if acc is not None else '')
+            + (', gyro bias' if cal.gyro_bias is not None else '')
+            + (', level trim' if cal.level_roll_pitch_rad is not None else '') + ')')
+        self._check_range()
 
     def _check_temperature(self):
         cal = self.corrector.cal
@@ -198,6 +378,132 @@ class CorrectionNode(Node):
         self.get_logger().warning(
             'the calibration has temperature tables but no imu/temperature arrived: '
             'correcting without the temperature drift')
+
+    def _check_range(self):
+        """Warn (throttled) when the temperature is outside the calibrated range."""
+        cal = self.corrector.cal
+        temp = self.temperature
+        rng = None if cal is None else cal.temperature_range_c
+        if rng is None or not math.isfinite(temp):
+            self._temp_problem = ''
+            return
+        margin = self.params['temperature_margin_c']
+        low, high = rng
+        if low - margin <= temp <= high + margin:
+            self._temp_problem = ''
+            return
+        self._temp_problem = (f'temperature {temp:.1f} degC is outside the calibrated range '
+                              f'{low:.1f} .. {high:.1f} degC: expect larger errors')
+        self._throttled_warning('temperature', self._temp_problem)
+
+    def _throttled_warning(self, key, text):
+        now = self.get_clock().now().nanoseconds * 1e-9
+        if now - self._last_warn.get(key, -math.inf) >= WARN_PERIOD_S:
+            self._last_warn[key] = now
+            self.get_logger().warning(text)
+
+    # -- level trim ------------------------------------------------------------------------
+    def on_level(self, request, response):
+        """
+        Measure the level trim from the last samples and store it in the calibration file.
+
+        :param request: std_srvs/Trigger request (empty).
+        :param response: std_srvs/Trigger response.
+        :return: the response: the roll and pitch stored, or the reason for refusal.
+        """
+        from ..core.level import level_trim
+        cal = self.corrector.cal
+        try:
+            if cal is None:
+                raise CalibrationError('no calibration loaded: calibrate the accelerometer '
+                                       'first (the trim is stored in its file)')
+            rows = list(self._recent.copy())      # copy(): atomic against the stream
+            if not rows:
+                raise CalibrationError('no imu/data_raw received yet')
+            data = np.array(rows, float)
+            n = int(round(self.params['level_duration_s'] * (self._rate_hz or 100.0)))
+            data = data[-max(n, 1):]
+            plain = Corrector(_without_level(cal))
+            corrected = np.array([plain.correct(x, y, z, t) for x, y, z, t in data])
+            trim = level_trim(corrected, cal.gravity)
+            cal.level_roll_pitch_rad = (trim['roll_rad'], trim['pitch_rad'])
+            save_calibration(cal, self.path)
+        except (CalibrationError, InputError, OSError) as err:
+            response.success = False
+            response.message = f'refused: {err}'
+            self.get_logger().warning(response.message)
+            self.check_file()
+            return response
+        self._key = file_key(self.path)
+        self._use(Corrector(cal), 'levelled')
+        response.success = True
+        response.message = (f'level trim stored in {self.path}: roll '
+                            f'{math.degrees(trim["roll_rad"]):.3f} deg, pitch '
+                            f'{math.degrees(trim["pitch_rad"]):.3f} deg from '
+                            f'{trim["samples"]} samples')
+        self.get_logger().info(response.message)
+        return response
+
+    def destroy_node(self):
+        """Destroy the stream node too."""
+        _destroy(self.stream)
+        return super().destroy_node()
+
+    # -- diagnostics -----------------------------------------------------------------------
+    def publish_diagnostics(self):
+        """Publish the calibration state on /diagnostics (REP-107)."""
+        cal = self.corrector.cal
+        now = self.get_clock().now().nanoseconds * 1e-9
+        then, count = self._rate_mark
+        if then is not None and now > then and self._samples > count:
+            self._rate_hz = (self._samples - count) / (now - then)
+        self._rate_mark = (now, self._samples)
+        status = DiagnosticStatus(level=DiagnosticStatus.OK,
+                                  name=f'{self.get_name()}: calibration',
+                                  hardware_id=(cal.sensor_id or '') if cal else '')
+        if cal is None:
+            status.level = DiagnosticStatus.WARN
+            status.message = ('uncalibrated: passing the raw acceleration through with '
+                              f'covariance ({UNCALIBRATED_STD} m/s2)^2 per axis')
+        else:
+            status.message = f'{cal.method} calibration applied'
+        problems = [p for p in (self._file_problem, self._temp_problem) if p]
+        if self._file_problem and cal is not None:
+            problems[0] += ': keeping the last good calibration'
+        if problems:
+            status.level = DiagnosticStatus.WARN
+            status.message += '; ' + '; '.join(problems)
+        values = {'calibration_file': self.path, 'samples': self._samples,
+                  'dropped_non_finite': self._dropped,
+                  'rate_hz': 'unknown' if self._rate_hz is None else round(self._rate_hz, 1),
+                  'temperature_c': self.temperature if math.isfinite(self.temperature)
+                  else 'unknown'}
+        if cal is not None:
+            values.update({'created': cal.created,
+                           'predicted_accuracy_m_s2': cal.predicted_accuracy,
+                           'temperature_range_c': cal.temperature_range_c,
+                           'gyro_bias': cal.gyro_bias is not None,
+                           'level_trim': cal.level_roll_pitch_rad is not None})
+        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self.diag_pub.publish(array)
+
+
+def _destroy(node):
+    """Destroy a node, ignoring a context already shut down."""
+    try:
+        node.destroy_node()
+    except Exception:                 # noqa: B902 - teardown must not mask the real exit
+        pass
+
+
+def _without_level(cal):
+    """Return a copy of ``cal`` without its level trim (the trim is measured afresh)."""
+    import copy
+    plain = copy.copy(cal)
+    plain.level_roll_pitch_rad = None
+    return plain
 
 
 def main(args=None):
