@@ -522,9 +522,12 @@ class CalibrationNode(Node):
             err.calibration = cal
             return err
 
+        acc = cal.predicted_accuracy
         if not cal.converged:
+            weak = acc is None or not acc <= p['max_predicted_error']
             raise refuse(f'the {p["method"]} fit did not converge in {cal.iterations} '
-                         'iterations: add more distinct poses')
+                         'iterations: add more distinct poses'
+                         + (f'; {self._accuracy_reason(cal)}' if weak else ''))
         expected = max(float(np.sqrt(np.mean(noise ** 2) / np.median(weights))),
                        MIN_WINDOW_NOISE)
         if not cal.residual_rms <= p['max_residual_ratio'] * expected:
@@ -536,7 +539,6 @@ class CalibrationNode(Node):
                 + ('' if thermal or not self._thermal_wanted(temps, 'auto') else
                    '; the windows fill two temperature bands: try thermal:=auto')
                 + '; the model-gap check follows on ~/status')
-        acc = cal.predicted_accuracy
         if acc is None or not acc <= p['max_predicted_error']:
             raise refuse(self._accuracy_reason(cal))
         problems = cal.physical_problems(p['max_scale_error'], p['max_cross_axis'],
