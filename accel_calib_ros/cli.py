@@ -45,7 +45,7 @@ def _add_window_args(p):
     g.add_argument('--min-window-s', type=_ranged(0.01, 3600.0),
                    default=DEFAULTS['min_duration_s'],
                    help='shortest static window kept after trimming its ends, s '
-                        '(default %(default)s: poses held about 1.5 s or longer)')
+                        '(default %(default)s: poses held about 1 s or longer)')
     g.add_argument('--threshold-factor', type=_ranged(1.0, 1e3),
                    default=DEFAULTS['threshold_factor'],
                    help='still when moving std < factor x noise floor (default %(default)s)')

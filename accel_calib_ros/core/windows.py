@@ -22,7 +22,7 @@ import numpy as np
 
 from .errors import CalibrationError
 
-DEFAULTS = {'window_s': 0.5, 'min_duration_s': 0.5, 'threshold_factor': 3.0, 'trim_s': 0.2,
+DEFAULTS = {'window_s': 0.25, 'min_duration_s': 0.3, 'threshold_factor': 3.0, 'trim_s': 0.1,
             'floor_quantile': 0.02, 'max_rotation_rad_s': float(np.radians(2.0))}
 
 
