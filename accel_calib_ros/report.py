@@ -23,23 +23,45 @@ import matplotlib.pyplot as plt  # noqa: E402, I100
 
 
 def _residual_figure(path, fit, model_label, c, directions):
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8), sharey=True)
+    """
+    Plot one model's normalised residuals against the session's variables.
+
+    Panels: temperature (if recorded), time, the z component of the gravity direction,
+    and the variable the residuals follow most closely (``diagnose.where_variables``).
+    Colour:
+    the axis nearest vertical; filled when it points up, hollow when down.
+    """
+    from .core.diagnose import where_variables
     r = fit.residuals
+    variables = where_variables(c, directions)
+    best, best_r = 'temperature', 0.0
+    for name, values in variables.items():
+        if np.ptp(values) > 0 and np.ptp(r) > 0:
+            rv = float(np.corrcoef(r, values)[0, 1])
+            if abs(rv) > abs(best_r):
+                best, best_r = name, rv
     panels = [('temperature - mean, °C', c.temp), ('time - mean, s', c.time),
-              ('z component of gravity direction', directions[:, 2])]
+              ('z component of gravity direction', directions[:, 2]),
+              (f'{best} (strongest, r = {best_r:+.2f})', variables[best])]
+    panels = [p for p in panels if np.ptp(p[1]) > 0]     # no temperature recorded: no panel
+    fig, axes = plt.subplots(1, len(panels), figsize=(4 * len(panels), 3.8), sharey=True,
+                             squeeze=False)
+    axes = axes[0]
     nearest = np.argmax(np.abs(directions), axis=1)
+    up = directions[np.arange(len(directions)), nearest] > 0
     for ax, (label, x) in zip(axes, panels):
         for axis, colour in enumerate(('tab:red', 'tab:green', 'tab:blue')):
-            mine = nearest == axis
-            ax.scatter(x[mine], r[mine], color=colour, s=14,
-                       label=f'{"xyz"[axis]} axis nearest vertical')
+            for sign, face in ((True, colour), (False, 'none')):
+                mine = (nearest == axis) & (up == sign)
+                ax.scatter(x[mine], r[mine], facecolors=face, edgecolors=colour, s=16,
+                           label=f'{"+" if sign else "-"}{"xyz"[axis]} nearest up')
         ax.axhline(0, color='k', lw=0.8)
         for band in (-2, 2):
             ax.axhline(band, color='grey', lw=0.6, ls='--')
         ax.set_xlabel(label)
         ax.grid(alpha=0.3)
     axes[0].set_ylabel('(|a| - g) / noise')
-    axes[0].legend(fontsize=7, loc='best')
+    axes[0].legend(fontsize=7, loc='best', ncol=2)
     fig.suptitle(f'{model_label}: gap {fit.gap:.2f}')
     fig.tight_layout()
     with atomic_path(path) as tmp:
@@ -99,13 +121,28 @@ def write_report(result, folder):
         lines.append(f'- Note: {note}')
     for name, reason in result.skipped.items():
         lines.append(f'- Not testable with this session: {name} ({reason}).')
+    lines.append('')
+    verdict = 'explained' if result.explained else 'NOT explained'
     if result.null_gaps:
-        lines.append('')
         lines.append("Re-simulating the final model under this session's poses, "
-                     f'temperatures and window lengths {len(result.null_gaps)} times gives '
-                     f'gaps of {np.mean(result.null_gaps):.2f} ± {np.std(result.null_gaps):.2f}: '
-                     f'the measured {result.gap_after:.2f} is '
-                     f'{"explained" if result.explained else "NOT explained"} by noise.')
+                     f'temperatures, times and window lengths {len(result.null_gaps)} times '
+                     f'gives gaps of {np.mean(result.null_gaps):.2f} ± '
+                     f'{np.std(result.null_gaps):.2f} (95th percentile '
+                     f'{np.percentile(result.null_gaps, 95):.2f}): the measured '
+                     f'{result.gap_after:.2f} (p = {result.null_p:.2f}) is {verdict} by '
+                     f'noise (limit {result.null_limit:.2f}).')
+    else:
+        lines.append(f'The final gap {result.gap_after:.2f} is {verdict} by noise '
+                     f'(chi² limit {result.null_limit:.2f}).')
+    noise = result.noise()
+    if 'sample_std' in noise:
+        lines.append('')
+        lines.append('Noise measured in the windows: per-sample std '
+                     + ', '.join(f'{v:.3g}' for v in noise['sample_std'])
+                     + f' (reading units), correlated-noise inflation {noise["inflation"]:.2f}'
+                     + (', density ' + ', '.join(f'{v:.0f}' for v in
+                                                 noise['density_ug_per_sqrt_hz'])
+                        + ' µg/√Hz' if 'density_ug_per_sqrt_hz' in noise else '') + '.')
     lines += ['', '![gap per step](gap.png)', '']
     for label, name in images:
         lines += [f'### Residuals: {label}', '', f'![{label}]({name})', '']

@@ -1,13 +1,15 @@
 """Model-gap workflow: each hidden effect is named, null sessions name nothing."""
 
 import json
+import time
 
 from accel_calib_ros.cli import main
-from accel_calib_ros.core.diagnose import diagnose, diagnose_windows
+from accel_calib_ros.core.diagnose import diagnose, diagnose_windows, held_out_check
 from accel_calib_ros.core.effects import EFFECTS
+from accel_calib_ros.core.errors import CalibrationError
 from accel_calib_ros.core.simulate import (
-    G0, mpu9250_like, random_directions, simulate_session, simulate_static_windows,
-    with_datasheet_effect)
+    face_directions, G0, mpu9250_like, random_directions, simulate_session,
+    simulate_static_windows, with_datasheet_effect)
 import numpy as np
 import pytest
 
@@ -99,3 +101,140 @@ def test_end_to_end_on_samples_and_cli(tmp_path, capsys):
     for key in ('effect', 'gap_before', 'gap_after', 'evidence', 'where'):
         assert key in step
     assert (report / 'report.md').exists() and (report / 'gap.png').stat().st_size > 1000
+
+
+def test_summary_is_strict_json_with_parameters_noise_and_null():
+    rng = np.random.default_rng(6)
+    sensor, baseline = hidden('temperature_scale', rng)
+    result = diagnose_windows(windows_of(sensor, rng, hump), baseline, rate_hz=100.0,
+                              replicates=10)
+    summary = json.loads(json.dumps(result.summary(), allow_nan=False))
+    assert summary['missing_effects'] == ['temperature_scale']
+    effect = summary['parameters']['effects']['temperature_scale']
+    assert '%/°C' in effect['magnitude'] and len(effect['values']) == 3
+    np.testing.assert_allclose(effect['values'], sensor.scale_tempco, atol=0.3e-4)
+    assert summary['null']['replicates'] == 10 and 0 < summary['null']['p_value'] <= 1
+    # MPU-9250-like noise: 300 µg/√Hz.
+    np.testing.assert_allclose(summary['noise']['density_ug_per_sqrt_hz'], 300, rtol=0.1)
+    assert 'temperature_scale' in result.text()
+
+
+def test_held_out_residual_drops_with_the_found_effect():
+    rng = np.random.default_rng(7)
+    sensor, baseline = hidden('temperature_bias', rng)
+    windows = windows_of(sensor, rng, hump)
+    result = diagnose_windows(windows, baseline, replicates=0)
+    check = held_out_check(windows, result)
+    assert check['effects'] == ['temperature_bias']
+    assert check['with_effects_rms'] < 0.3 * check['baseline_rms']
+    assert check['fit_windows'] + check['test_windows'] == N_WINDOWS
+
+
+def test_fast_enough_for_the_calibration_node():
+    rng = np.random.default_rng(8)
+    sensor = mpu9250_like(rng)
+    windows = simulate_static_windows(sensor, random_directions(100, rng), rng, HOLD_S,
+                                      COUNT, temperature=hump)
+    start = time.perf_counter()
+    result = diagnose_windows(windows, 'ml', 9.80665, replicates=20)
+    assert time.perf_counter() - start < 1.0
+    assert result.missing_effects == []
+
+
+def test_too_few_windows_is_a_calibration_error_and_gn_needs_fewer():
+    rng = np.random.default_rng(9)
+    sensor = mpu9250_like(rng)
+    sensor.T = np.diag(np.diag(sensor.T))
+    windows = windows_of(sensor, rng, 25.0).select(np.arange(10))
+    with pytest.raises(CalibrationError):
+        diagnose_windows(windows, 'ml')
+    result = diagnose_windows(windows, 'gn', replicates=0)
+    assert result.missing_effects == []
+    assert 'nonorthogonality' in result.skipped      # 10 windows: too few to test
+
+
+def test_correlated_noise_is_not_taken_for_a_model_error():
+    rng = np.random.default_rng(10)
+    sensor = mpu9250_like(rng)
+    sensor.noise_std = np.zeros(3)
+    session = simulate_session(sensor, random_directions(40, rng), rng, hold_s=3.0,
+                               move_s=1.0)
+    # AR(1) noise with a 0.1 s correlation time: a window mean is ~4x noisier than
+    # white noise of the same per-sample scatter would make it.
+    phi, noise = 0.9, np.zeros((len(session.samples.t), 3))
+    drive = rng.standard_normal(noise.shape) * 0.02 * np.sqrt(1 - phi ** 2)
+    for k in range(1, len(noise)):
+        noise[k] = phi * noise[k - 1] + drive[k]
+    session.samples.accel[:] = session.samples.accel + noise
+    result = diagnose(session.samples, 'ml', replicates=10)
+    assert result.noise_inflation > 5.0
+    assert result.missing_effects == [], result.text()
+    assert result.explained, result.text()
+
+
+def test_cli_simulate_then_diagnose(tmp_path, capsys):
+    path = str(tmp_path / 'x.csv')
+    assert main(['simulate', '-o', path, '--effects', 'temperature_bias', '--temp', '10',
+                 '45', '--poses', '60', '--hold', '2.5', '--move', '1.0']) == 0
+    capsys.readouterr()
+    assert main(['diagnose', path, '--json']) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary['missing_effects'][:1] == ['temperature_bias']
+    # A plain ramp: temperature and time cannot be told apart, and the result says so.
+    assert any('bias_drift' in note for note in summary['ambiguities'])
+
+
+def test_six_faces_cannot_show_cross_axis_or_quadratic_terms():
+    rng = np.random.default_rng(11)
+    sensor, baseline = hidden('nonorthogonality', rng)
+    windows = simulate_static_windows(sensor, np.tile(face_directions(), (3, 1)), rng,
+                                      HOLD_S, COUNT)
+    result = diagnose_windows(windows, baseline, replicates=0)
+    assert result.missing_effects == []
+    for name in ('nonorthogonality', 'scale_nonlinearity'):
+        assert 'cannot show' in result.skipped[name]
+    assert 'bias_drift' not in result.skipped
+
+
+def test_report_has_a_residual_plot_per_step(tmp_path):
+    from accel_calib_ros.report import write_report
+    rng = np.random.default_rng(12)
+    sensor, baseline = hidden('temperature_bias', rng)
+    result = diagnose_windows(windows_of(sensor, rng, hump), baseline, replicates=5)
+    path = write_report(result, str(tmp_path / 'r'))
+    text = open(path).read()
+    assert 'temperature_bias' in text and 'mg/°C' in text
+    for name in ('gap.png', 'residuals_step0.png', 'residuals_step1.png'):
+        assert name in text and (tmp_path / 'r' / name).stat().st_size > 1000
+    assert not [f for f in (tmp_path / 'r').iterdir() if f.name.startswith('.')]
+
+
+def test_a_new_effect_is_one_class(monkeypatch):
+    from accel_calib_ros.core import effects
+
+    class TemperatureBias2(effects.PerAxisEffect):
+        name = 'temperature_bias_quadratic'
+        description = 'the zero-g offset bends with temperature'
+        param_names = ('c2_x', 'c2_y', 'c2_z')
+        unit = 'm/s² per °C²'
+        label = 'offset curvature'
+        applicable = effects.TemperatureBias.applicable
+
+        def columns(self, accel, temp, time, gravity=G0):
+            return effects._per_axis(np.repeat(temp[:, None] ** 2, 3, axis=1))
+
+        def axis_text(self, value, gravity):
+            return f'{1000 * value / gravity:+.4f} mg/°C²'
+
+    new = TemperatureBias2()
+    monkeypatch.setitem(EFFECTS, new.name, new)
+    rng = np.random.default_rng(13)
+    sensor = mpu9250_like(rng)
+    windows = windows_of(sensor, rng, hump)
+    temp = windows.temp - windows.temp.mean()
+    hidden_params = np.array([0.05e-3, -0.04e-3, 0.03e-3]) * G0     # mg/°C²
+    windows.mean[:] += new.apply(hidden_params, windows.mean, temp, windows.t_mid)
+    result = diagnose_windows(windows, 'ml', replicates=5)
+    assert result.missing_effects[:1] == [new.name], result.text()
+    assert 'mg/°C²' in result.steps[0]['evidence']['magnitude']
+    assert result.gap_after < 1.5

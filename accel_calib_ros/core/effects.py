@@ -6,7 +6,25 @@ physically, its parameters with units, when a session can see it, and its
 design-matrix columns: the change of the raw reading per unit parameter, evaluated
 at the true acceleration, the temperature and the time. The same columns drive the
 fit (``diagnose``) and the simulation (``Effect.apply``), so both always agree.
-Adding an effect is adding one subclass to ``EFFECTS``.
+Adding an effect is adding one subclass to ``EFFECTS``, for example an offset that
+moves with the square of the temperature::
+
+    class TemperatureBias2(PerAxisEffect):
+        name = 'temperature_bias_quadratic'
+        description = 'the zero-g offset bends with temperature'
+        param_names = ('c2_x', 'c2_y', 'c2_z')
+        unit = 'm/s² per °C²'
+        label = 'offset curvature'
+        applicable = TemperatureBias.applicable
+
+        def columns(self, accel, temp, time, gravity=G0):
+            return _per_axis(np.repeat(temp[:, None] ** 2, 3, axis=1))
+
+        def axis_text(self, value, gravity):
+            return f'{1000 * value / gravity:+.4f} mg/°C²'
+
+The search, the F-test, the ambiguity and visibility checks, the null simulation,
+the report and the JSON then pick it up.
 """
 
 import numpy as np
