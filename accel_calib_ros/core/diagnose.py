@@ -38,16 +38,17 @@ from .windows import detect_static_windows
 P_SUPPORT = 1e-3
 """Largest F-test p-value for which an added effect counts as supported."""
 
-AMBIGUOUS_RATIO = 0.8
-"""Runner-up whose chi² reduction is at least this fraction of the winner's is a rival."""
-
 RAMP_TEMP_C = 0.05
 """Temperature change inside a window above which its linear ramp is not counted as noise."""
 
 MIN_VISIBILITY = 0.01
 """Effects that this session shows less than this (see ``visibility``) are not tested."""
 
-COLLINEAR = 0.95
+COLLINEAR = 0.9
+"""Supported runner-up whose signature correlates more than this with the winner's is a rival."""
+
+WANDER_FACTOR = 20.0
+"""A window whose block means wander this many times the pooled level holds motion."""
 """Supported runner-up whose signature correlates more than this with the winner's is a rival."""
 
 
@@ -181,11 +182,67 @@ class Fit:
         return float(np.sqrt(self.chi2 / max(self.dof, 1)))
 
 
-NULL_Z = 2.326
-"""One-sided 99 % point of the normal: the null gap limit is mean + NULL_Z std."""
+@dataclass
+class WindowNoise:
+    """
+    How much a window mean scatters, measured inside the windows.
+
+    :param inflation: (3,) variance of a window mean over the white-noise value
+        sample variance / n: 1 for white noise, more for correlated noise (a DLPF, AR
+        noise, flicker), less for vibration that averages out within a window.
+    :param relative_se: (3,) standard error of ``inflation`` over its value.
+    :param method: per axis, 'white', 'correlated', 'vibration' or 'given'.
+    :param moving: (W,) bool, windows whose block means wander more than
+        ``WANDER_FACTOR`` times the pooled level: they hold motion, not a pose.
+    """
+
+    inflation: np.ndarray
+    relative_se: np.ndarray
+    method: list
+    moving: np.ndarray = None
+
+
+    @property
+    def dof(self):
+        """Effective degrees of freedom of the noise level (chi² of 2 / relative variance)."""
+        rel = float(np.mean(self.relative_se ** 2)) / 3.0
+        return float(2.0 / rel) if rel > 0 else float('inf')
+
+
+NULL_QUANTILE = 0.999
+"""The null gap limit is this quantile of the gap's distribution under noise alone."""
 
 NULL_TOLERANCE = 0.05
-"""Relative margin on the null gap limit for the uncertainty of the measured noise itself."""
+"""Relative margin on the null gap limit for a bias of the measured noise level."""
+
+MIN_EFFECT_MG = 1.0
+"""Smallest practical threshold, mg: an effect smaller than this is never named."""
+
+
+def null_gap_limit(dof, noise_dof, quantile=NULL_QUANTILE):
+    """
+    Return the largest gap that noise alone gives with probability ``quantile``.
+
+    Under noise alone gap² = (chi²_dof / dof) / (chi²_nu / nu): the model's chi² over
+    the noise level's own estimate, nu = ``noise_dof`` its effective degrees of freedom
+    (``WindowNoise.dof``; inf when the noise is known). So gap² follows F(dof, nu),
+    analytic: no re-simulation noise, the same verdict from run to run.
+    """
+    dof = max(int(dof), 1)
+    if not np.isfinite(noise_dof):
+        q = stats.chi2.ppf(quantile, dof) / dof
+    else:
+        q = stats.f.ppf(quantile, dof, max(noise_dof, 1.0))
+    return float(np.sqrt(q) * (1.0 + NULL_TOLERANCE))
+
+
+def null_gap_p(gap, dof, noise_dof):
+    """Return P(gap >= ``gap`` | noise alone) from the F(dof, nu) law of ``null_gap_limit``."""
+    dof = max(int(dof), 1)
+    x = (gap / (1.0 + NULL_TOLERANCE)) ** 2
+    if not np.isfinite(noise_dof):
+        return float(stats.chi2.sf(x * dof, dof))
+    return float(stats.f.sf(x, dof, max(noise_dof, 1.0)))
 
 
 @dataclass
@@ -200,9 +257,15 @@ class DiagnoseResult:
     ambiguities: list = field(default_factory=list)
     skipped: dict = field(default_factory=dict)
     null_gaps: list = field(default_factory=list)
-    noise_inflation: float = 1.0
+    window_noise: WindowNoise = None
     noise_std: np.ndarray = None     # (3,) pooled per-sample scatter, reading units
     rate_hz: float = None
+    threshold_mg: float = MIN_EFFECT_MG
+    predicted_accuracy_mg: float = None
+    candidates: list = field(default_factory=list)   # the last round's candidates
+    below_threshold: list = field(default_factory=list)
+    probes: dict = field(default_factory=dict)
+    dropped_windows: int = 0
 
     @property
     def missing_effects(self):
@@ -217,28 +280,23 @@ class DiagnoseResult:
         return self.fits[-1].gap
 
     @property
-    def null_limit(self):
-        """
-        Return the largest gap that noise explains for this session.
+    def noise_inflation(self):
+        """Return the mean over axes of the window-mean variance factor (1 = white)."""
+        return float(np.mean(self.window_noise.inflation)) if self.window_noise else 1.0
 
-        The gaps of the fitted model re-simulated under the session's own conditions
-        are close to normal; their mean + ``NULL_Z`` std (a 99 % point, steadier than an
-        empirical percentile of 20 replicates) times 1 + ``NULL_TOLERANCE``. Without
-        re-simulations the chi² approximation (mean 1, std sqrt(1 / (2 dof))) is used.
-        """
-        if len(self.null_gaps) < 5:
-            mean, std = 1.0, np.sqrt(0.5 / max(self.fits[-1].dof, 1))
-        else:
-            mean, std = np.mean(self.null_gaps), np.std(self.null_gaps, ddof=1)
-        return float((mean + NULL_Z * std) * (1.0 + NULL_TOLERANCE))
+    @property
+    def noise_dof(self):
+        return self.window_noise.dof if self.window_noise else float('inf')
+
+    @property
+    def null_limit(self):
+        """Return the largest gap that noise explains for this session (``null_gap_limit``)."""
+        return null_gap_limit(self.fits[-1].dof, self.noise_dof)
 
     @property
     def null_p(self):
-        """Return the fraction of re-simulated gaps at least the measured one (None if none)."""
-        if not self.null_gaps:
-            return None
-        above = np.sum(np.asarray(self.null_gaps) >= self.gap_after)
-        return float((above + 1) / (len(self.null_gaps) + 1))
+        """Return P(a gap at least the measured one | noise alone)."""
+        return null_gap_p(self.gap_after, self.fits[-1].dof, self.noise_dof)
 
     def excess_scatter(self):
         """
@@ -261,9 +319,29 @@ class DiagnoseResult:
         return float(optimize.brentq(excess, 0.0, high))
 
     @property
-    def explained(self):
+    def statistically_explained(self):
         """Tell whether the final gap lies within what noise alone produces."""
         return self.gap_after <= self.null_limit
+
+    @property
+    def negligible(self):
+        """Tell whether what is left beyond the noise is too small to matter (see threshold)."""
+        return 2000.0 * self.excess_scatter() / G0 < self.threshold_mg
+
+    @property
+    def explained(self):
+        """
+        Tell whether nothing is left to find.
+
+        True when the final gap is within the noise, or when the scatter left beyond the
+        noise is below half the practical threshold (detectable, irrelevant).
+        """
+        return self.statistically_explained or self.negligible
+
+    @property
+    def outside_library(self):
+        """Tell whether a disagreement that matters is left that no library effect explains."""
+        return not self.explained
 
     def parameters(self):
         """
@@ -285,28 +363,57 @@ class DiagnoseResult:
 
     def noise(self):
         """Return the measured noise, JSON-ready (per-sample std, inflation, density)."""
-        out = {'inflation': float(self.noise_inflation)}
+        dof = self.noise_dof
+        out = {'inflation': self.noise_inflation, 'dof': dof if np.isfinite(dof) else None}
+        if self.window_noise is not None:
+            out['inflation_per_axis'] = self.window_noise.inflation.tolist()
+            out['relative_se'] = self.window_noise.relative_se.tolist()
+            out['model'] = list(self.window_noise.method)
         if self.noise_std is not None:
             out['sample_std'] = np.asarray(self.noise_std, float).tolist()
             if self.rate_hz:
                 T = np.diag(Model(self.baseline, []).split(self.fits[0].x)[0])
-                density = np.asarray(self.noise_std) / np.abs(T) / np.sqrt(self.rate_hz / 2.0)
+                inflation = (self.window_noise.inflation if self.window_noise is not None
+                             else np.ones(3))
+                density = (np.asarray(self.noise_std) * np.sqrt(inflation) / np.abs(T)
+                           / np.sqrt(self.rate_hz / 2.0))
                 out['density_ug_per_sqrt_hz'] = (density / G0 * 1e6).tolist()
         return out
 
+    def verdict(self):
+        """Return the one-line verdict on what is left after the named effects."""
+        if self.statistically_explained:
+            return 'explained by noise'
+        if self.negligible:
+            return (f'beyond the noise, but the rest ({1000 * self.excess_scatter() / G0:.2g} '
+                    f'mg per window) is below the practical threshold '
+                    f'({self.threshold_mg:.2g} mg)')
+        return ('NOT explained by noise: no effect in the library brings the gap into the '
+                'noise band; the cause may lie outside the effect library')
+
     def summary(self):
         """Return the JSON-ready machine summary of spec section 3 (plus extras)."""
+        null = {'method': 'analytic F(dof, noise dof)', 'quantile': NULL_QUANTILE,
+                'dof': self.fits[-1].dof,
+                'noise_dof': self.noise_dof if np.isfinite(self.noise_dof) else None,
+                'limit': self.null_limit, 'p_value': self.null_p,
+                'replicates': len(self.null_gaps),
+                'mean': float(np.mean(self.null_gaps)) if self.null_gaps else None,
+                'p95': float(np.percentile(self.null_gaps, 95)) if self.null_gaps else None}
         return {
             'baseline': self.baseline, 'missing_effects': self.missing_effects,
             'gap_before': self.gap_before, 'gap_after': self.gap_after,
             'steps': self.steps, 'ambiguities': self.ambiguities,
-            'windows': self.windows, 'explained_by_noise': bool(self.explained),
-            'null': {'replicates': len(self.null_gaps),
-                     'mean': float(np.mean(self.null_gaps)) if self.null_gaps else None,
-                     'p95': float(np.percentile(self.null_gaps, 95))
-                     if self.null_gaps else None,
-                     'limit': self.null_limit, 'p_value': self.null_p},
-            'null_gap_limit': self.null_limit, 'null_gaps': len(self.null_gaps),
+            'windows': self.windows, 'dropped_windows': self.dropped_windows,
+            'explained_by_noise': bool(self.explained),
+            'statistically_explained': bool(self.statistically_explained),
+            'outside_library': bool(self.outside_library), 'verdict': self.verdict(),
+            'threshold_mg': self.threshold_mg,
+            'predicted_accuracy_mg': self.predicted_accuracy_mg,
+            'candidates': self.candidates, 'below_threshold': self.below_threshold,
+            'probes': {k: {kk: vv for kk, vv in v.items() if not kk.startswith('_')}
+                       for k, v in self.probes.items()},
+            'null': null, 'null_gap_limit': self.null_limit,
             'noise_inflation': self.noise_inflation, 'noise': self.noise(),
             'excess_scatter_m_s2': self.excess_scatter(),
             'parameters': self.parameters(),
@@ -316,34 +423,39 @@ class DiagnoseResult:
     def text(self):
         """Return the human summary."""
         lines = [f'baseline {self.baseline}: {self.windows} static windows, gap '
-                 f'{self.gap_before:.2f} (1 = agrees with the noise)']
+                 f'{self.gap_before:.2f} (1 = agrees with the noise); practical threshold '
+                 f'{self.threshold_mg:.2g} mg']
         for step in self.steps:
             where = step['where'][0] if step['where'] else None
             lines.append(f'+ {step["effect"]}: gap {step["gap_before"]:.2f} -> '
                          f'{step["gap_after"]:.2f}  ({step["evidence"]["magnitude"]}; '
+                         f'up to {step["evidence"]["worst_case_mg"]:.2g} mg; '
                          f'F = {step["evidence"]["F"]:.1f}, p = {step["evidence"]["p"]:.1e})')
             if where:
                 lines.append(f'    before it, residuals followed {where["variable"]} '
                              f'(r = {where["r"]:+.2f})')
         if not self.steps:
             lines.append('no missing effect is supported by this session')
+        for cand in self.below_threshold:
+            lines.append(f'detectable but below the practical threshold: {cand["effect"]} '
+                         f'(up to {cand["worst_case_mg"]:.2g} mg, p = {cand["p"]:.1e})')
         for note in self.ambiguities:
             lines.append('note: ' + note)
         for name, reason in self.skipped.items():
             lines.append(f'not testable here: {name} ({reason})')
-        verdict = 'explained by noise' if self.explained else 'NOT explained by noise'
-        if self.null_gaps:
-            floor = 1.0 / (len(self.null_gaps) + 1)
-            p = (f'p < {floor + 1e-9:.2f}' if self.null_p <= floor
-                 else f'p = {self.null_p:.2f}')
-            verdict += (f' (re-simulated gaps {np.mean(self.null_gaps):.2f}, 95th percentile '
-                        f'{np.percentile(self.null_gaps, 95):.2f}, limit '
-                        f'{self.null_limit:.2f}; {p})')
-        lines.append(f'final gap {self.gap_after:.2f}: {verdict}')
-        if not self.explained:
-            lines.append(f'the rest is a scatter of {self.excess_scatter():.2g} m/s² per window '
-                         'that no tested effect explains: e.g. bias instability, the mount '
-                         'shifting between poses, or noise correlated beyond a window')
+        lines.append(f'final gap {self.gap_after:.2f} (noise limit {self.null_limit:.2f}, '
+                     f'p = {self.null_p:.2g}): {self.verdict()}')
+        if not self.statistically_explained:
+            lines.append(f'the rest is a scatter of {self.excess_scatter():.2g} m/s² per window')
+            found = [(name, p) for name, p in self.probes.items() if p['significant']]
+            if found:
+                lines.append('where the residual lives: ' + '; '.join(
+                    f'{name} ({p["rms_mg"]:.2g} mg RMS, p = {p["p"]:.1e})'
+                    for name, p in found))
+            else:
+                lines.append('no smooth trend in time, temperature, direction or magnitude: '
+                             'a scatter from pose to pose (e.g. bias instability, the mount '
+                             'shifting between poses, or noise correlated beyond a window)')
         return '\n'.join(lines)
 
 
@@ -369,34 +481,70 @@ def _batch_ratios(x, blocks, removed):
     return ratio / (stats.chi2.median(dof) / dof)
 
 
-def _noise_inflation(samples, windows, blocks=8):
+def _low_frequency_ratio(x):
     """
-    Return the variance of a window mean over its white-noise value (>= 1), by batch means.
+    Return the noise power near 0 Hz over the sample variance, per axis, shape (3,).
+
+    Hann-tapered periodogram of one window (mean removed), bins 2 and 3 (bins 0 and 1
+    hold what is left of the mean): 1 for white noise. The taper's side lobes fall fast,
+    so vibration at tens of Hz does not leak into these bins as it does into block means.
+    """
+    n = len(x)
+    taper = np.hanning(n)
+    spectrum = np.abs(np.fft.rfft(x * taper[:, None], axis=0)) ** 2 / np.sum(taper ** 2)
+    var = np.sum(x ** 2, axis=0) / max(n - 1, 1)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        ratio = np.where(var > 0, spectrum[2:4].mean(axis=0) / var, np.nan)
+    return ratio / (stats.chi2.median(4) / 4)
+
+
+def _pooled(ratios):
+    """
+    Return the median of per-window ratios and its standard error.
+
+    The spread is the robust 1.4826 MAD (a window that holds a move must not swamp it);
+    the median's standard error is 1.2533 spread / sqrt(n).
+    """
+    ratios = ratios[np.isfinite(ratios)]
+    if len(ratios) < 3:
+        return np.nan, np.nan
+    median = float(np.median(ratios))
+    spread = 1.4826 * float(np.median(np.abs(ratios - median)))
+    return median, 1.2533 * spread / np.sqrt(len(ratios))
+
+
+def window_noise(samples, windows, blocks=8):
+    """
+    Measure the variance of each window mean from the data's own within-window spectrum.
 
     Each window (less a linear ramp if the temperature moved more than ``RAMP_TEMP_C``
     inside it: the ramp is the model's business, not noise) is cut into ``blocks``
-    blocks of m samples: R(m) = m var(block means) / var(samples) is 1 for white noise
-    and grows with the noise's correlation time. R(m) approaches its limit like
-    R_inf - C / m, so blocks of m = n/8 understate the whole window's factor R(n) when
-    the correlation time is not much shorter than a block (by 30 % for AR(1) noise with
-    a 10-sample correlation time in 2.5 s windows). The factor is therefore measured
-    with ``blocks`` and ``blocks / 2`` blocks and extrapolated: R_inf = 2 R(2m) - R(m),
-    R(n) = R_inf - (R_inf - R(m)) / blocks (when R(m) < 1.2 the noise is next to white
-    and R(m) is used as it is). Each R is the median over windows and axes of
-    chi²-median-corrected ratios (see ``_batch_ratios``). On simulated AR(1) noise in
-    260-sample windows this gives 1.0, 3.1, 20.6 and 55 for true 1.0, 3.0, 19.7 and 57
-    (correlation 0, 0.5, 0.9, 0.97 per sample; true = variance of the window mean over
-    the within-window scatter / n, which is itself slightly low for correlated noise).
+    and into ``blocks / 2`` blocks of m samples. R(m) = m var(block means) / var(samples)
+    is the low-frequency noise power over the total: 1 for white noise, more for noise
+    correlated over many samples (a DLPF at 1 kHz, AR noise), less when the sample
+    scatter is vibration that averages out. R is pooled per axis as the median over
+    windows (chi²-median corrected, see ``_batch_ratios``) and compared between the two
+    block lengths:
+
+    - equal within twice their standard error: white at these scales, R(n/8) is used;
+    - otherwise R approaches its limit like R_inf + C/m and is extrapolated to the
+      whole window, R(n) = 1.75 R(n/4) - 0.75 R(n/8) (at least R(n/4) / 4): larger
+      for longer blocks is correlated noise;
+    - when the Hann-tapered spectrum near 0 Hz (``_low_frequency_ratio``) is well below
+      that, the sample scatter is vibration above 0 Hz: the spectral value plus the
+      vibration's leak into a rectangular mean, (R(n/8) - spectral) / 8, is used.
 
     :param samples: Samples the windows were detected in.
     :param windows: StaticWindows (start, stop index the samples).
     :param blocks: blocks per window for the short batches (even, >= 8).
+    :returns: WindowNoise (white, unit inflation when no window is long enough).
     """
     half = blocks // 2
-    short, long_ = [], []
-    for a, b in zip(windows.start, windows.stop):
+    short, long_, spectral, tested = [], [], [], []
+    for w, (a, b) in enumerate(zip(windows.start, windows.stop)):
         if (b - a) // blocks < 8:
             continue
+        tested.append(w)
         x = samples.accel[a:b]
         x = x - x.mean(axis=0)
         removed = 1
@@ -406,19 +554,46 @@ def _noise_inflation(samples, windows, blocks=8):
             ramp = np.linspace(-1.0, 1.0, len(x))[:, None]
             x = x - ramp * (ramp * x).sum(axis=0) / (ramp ** 2).sum()
             removed = 2
-        short.extend(_batch_ratios(x, blocks, removed))
-        long_.extend(_batch_ratios(x, half, removed))
+        spectral.append(_low_frequency_ratio(x))
+        short.append(_batch_ratios(x, blocks, removed))
+        long_.append(_batch_ratios(x, half, removed))
+    inflation, rel, method = np.ones(3), np.zeros(3), ['white'] * 3
+    moving = np.zeros(len(windows), bool)
+    if len(short) < 3:
+        return WindowNoise(inflation, rel, method, moving)
     short, long_ = np.asarray(short), np.asarray(long_)
-    short, long_ = short[np.isfinite(short)], long_[np.isfinite(long_)]
-    if not len(short) or not len(long_):
-        return 1.0
-    r_short, r_long = np.median(short), np.median(long_)
-    if r_short < 1.2:
-        # Next to white: the extrapolation would only add its own scatter.
-        return float(max(1.0, r_short))
-    r_inf = 2.0 * r_long - r_short
-    r_window = r_inf - (r_inf - r_short) / blocks
-    return float(max(1.0, r_short, r_window))
+    level = np.nanmedian(short, axis=0)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        wander = np.nanmax(short / np.where(level > 0, level, np.nan), axis=1)
+    moving[np.asarray(tested)[wander > WANDER_FACTOR]] = True
+    keep = ~(wander > WANDER_FACTOR)
+    short, long_, spectral = short[keep], long_[keep], np.asarray(spectral)[keep]
+    for i in range(3):
+        r8, se8 = _pooled(short[:, i])
+        r4, se4 = _pooled(long_[:, i])
+        if not (np.isfinite(r8) and np.isfinite(r4)) or r8 <= 0:
+            continue
+        diff_se = np.hypot(se4, se8)
+        if abs(r4 - r8) <= 2.0 * diff_se:
+            value, se = r8, se8
+        else:
+            # R(m) = R_inf + C/m: C < 0 for correlated noise (a DLPF, AR noise), C > 0 for
+            # vibration without power at 0 Hz (its block means average down like 1/m).
+            # Extrapolated to the whole window; R(n) cannot fall below R(n/4) / 4.
+            value = max(1.75 * r4 - 0.75 * r8, 0.25 * r4)
+            se = np.hypot(1.75 * se4, 0.75 * se8)
+            method[i] = 'correlated'
+        rs, ses = _pooled(spectral[:, i])
+        if (np.isfinite(rs) and rs < 0.5 * min(value, r8)
+                and rs < r8 - 3.0 * np.hypot(ses, se8)):
+            # Vibration: the sample scatter is power well above 0 Hz. The tapered
+            # low-frequency spectrum gives the noise under it; what the vibration leaks
+            # into a rectangular mean falls like 1/m, from R(n/8) to R(n) by 8.
+            value = rs + (r8 - rs) / blocks
+            se, method[i] = np.hypot(ses, se8 / blocks), 'vibration'
+        inflation[i] = max(value, 1e-3)
+        rel[i] = se / inflation[i]
+    return WindowNoise(inflation, rel, method, moving)
 
 
 def conditions_from_windows(windows, gravity, inflation=1.0):
@@ -427,7 +602,7 @@ def conditions_from_windows(windows, gravity, inflation=1.0):
 
     :param windows: StaticWindows.
     :param gravity: local gravity, m/s².
-    :param inflation: variance factor of a window mean over white noise (>= 1).
+    :param inflation: variance factor of a window mean over white noise, scalar or (3,).
     """
     noise = windows.noise_std
     noise = np.where(noise > 0, noise, np.max(noise) if np.max(noise) > 0 else 1e-3)
@@ -552,6 +727,151 @@ def visibility(model, fit, c, name):
     return float(np.linalg.svd(j / raw, compute_uv=False).min())
 
 
+def fibonacci_directions(n=200):
+    """Return ``n`` unit vectors spread evenly over the sphere, shape (n, 3)."""
+    k = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * k / n
+    phi = np.pi * (1.0 + 5 ** 0.5) * k
+    r = np.sqrt(1.0 - z ** 2)
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+
+
+def effect_worst_case_mg(model, x, c, name, params):
+    """
+    Return the largest error, mg, effect ``name`` with ``params`` makes in corrected acceleration.
+
+    The error T^-1 columns(a, θ, t) p of the corrected specific force, over every
+    direction of gravity (200 spread over the sphere plus the session's own) and every
+    temperature and time of the session (centred as in the fit, so what the baseline
+    absorbs at the session mean is not counted).
+    """
+    T = model.split(x)[0]
+    a_session = model.true_accel(x, c)
+    dirs = np.vstack([fibonacci_directions(),
+                      a_session / np.linalg.norm(a_session, axis=1, keepdims=True)])
+    conds = np.unique(np.column_stack([c.temp, c.time]), axis=0)
+    if len(conds) > 60:
+        conds = conds[np.linspace(0, len(conds) - 1, 60).round().astype(int)]
+    T_inv = np.linalg.inv(T)
+    worst = 0.0
+    for temp, time in conds:
+        n = len(dirs)
+        cols = EFFECTS[name].columns(c.gravity * dirs, np.full(n, temp), np.full(n, time),
+                                     c.gravity)
+        err = (cols @ np.asarray(params, float)) @ T_inv.T
+        worst = max(worst, float(np.max(np.linalg.norm(err, axis=1))))
+    return 1000.0 * worst / G0
+
+
+def predicted_accuracy_mg(model, fit):
+    """
+    Return the baseline fit's predicted accuracy, mg: RMS error of the corrected vector.
+
+    From the covariance (J^T J)^-1 of the baseline parameters (J: Jacobian of the
+    noise-normalised residuals), the error -T^-1 (dT a + db) of a = T^-1 (y - b),
+    averaged over directions spread evenly on the sphere at |a| = g (spec section 5).
+    """
+    jac = fit.jac[:, :model.n_base]
+    cov = np.linalg.pinv(jac.T @ jac)
+    T = model.split(fit.x)[0]
+    T_inv = np.linalg.inv(T)
+    index = np.argwhere(np.triu(np.ones((3, 3))) > 0) if model.baseline == 'ml' else \
+        np.array([[i, i] for i in range(3)])
+    total = 0.0
+    dirs = fibonacci_directions(100)
+    for u in dirs:
+        a = G0 * u
+        D = np.zeros((3, model.n_base))
+        for col, (i, j) in enumerate(index):
+            D[i, col] = a[j]
+        D[:, len(index):len(index) + 3] = np.eye(3)
+        M = T_inv @ D
+        total += float(np.trace(M @ cov @ M.T))
+    return 1000.0 * float(np.sqrt(total / len(dirs))) / G0
+
+
+PROBE_P = 1e-3
+"""A nonparametric probe is significant below this F-test p-value."""
+
+
+def _cosine_basis(values, degree):
+    """Return cos(k pi u), k = 1..degree, of ``values`` scaled to u in [0, 1], (N, degree)."""
+    span = np.ptp(values)
+    if span <= 0 or degree < 1:
+        return np.zeros((len(values), 0))
+    u = (values - values.min()) / span
+    return np.column_stack([np.cos(np.pi * k * u) for k in range(1, degree + 1)])
+
+
+def _sphere_basis(directions, degree):
+    """Return the monomials x^a y^b z^c, 1 <= a+b+c <= degree (spherical harmonics span)."""
+    cols = []
+    for total in range(1, degree + 1):
+        for i in range(total + 1):
+            for j in range(total + 1 - i):
+                k = total - i - j
+                cols.append(directions[:, 0] ** i * directions[:, 1] ** j
+                            * directions[:, 2] ** k)
+    return np.column_stack(cols)
+
+
+def residual_probes(model, fit, c):
+    """
+    Show where the final residual lives, without assuming a physical effect.
+
+    Four smooth, nonparametric bases are fitted to the noise-normalised residuals, each
+    after removing what the fitted model can already absorb (its Jacobian): a cosine
+    series in time and in temperature, low-degree spherical harmonics over the gravity
+    direction, and a cosine series in the magnitude of the raw reading |y|. A nested
+    F-test gives each its significance. A probe that is significant while no library
+    effect is says which variable the missing cause follows.
+
+    :returns: dict probe -> {'p', 'F', 'terms', 'rms_mg', 'max_mg', 'significant',
+        '_x' (per-window variable), '_smooth' (per-window fitted values, m/s²)}.
+    """
+    n = len(c.readings)
+    rho, s = model.residual_parts(fit.x, c)
+    r = rho / s
+    a = model.true_accel(fit.x, c)
+    directions = a / np.linalg.norm(a, axis=1, keepdims=True)
+    q = np.linalg.qr(fit.jac)[0] if fit.jac is not None and fit.jac.shape[1] else \
+        np.zeros((n, 0))
+    room = max(fit.dof - 3, 0)
+    smooth_degree = int(min(6, room // 3))
+    sphere_degree = 4 if room >= 40 else 3 if room >= 25 else 2 if room >= 12 else 0
+    bases = {
+        'time': (c.time, _cosine_basis(c.time, smooth_degree)),
+        'temperature': (c.temp, _cosine_basis(c.temp, smooth_degree)),
+        'direction': (directions, _sphere_basis(directions, sphere_degree)
+                      if sphere_degree else np.zeros((n, 0))),
+        'magnitude': (np.linalg.norm(c.readings, axis=1),
+                      _cosine_basis(np.linalg.norm(c.readings, axis=1), min(smooth_degree, 3))),
+    }
+    out = {}
+    for name, (values, basis) in bases.items():
+        if not basis.shape[1]:
+            continue
+        basis = basis / s[:, None]          # a smooth in m/s², seen in normalised units
+        if q.shape[1]:
+            basis = basis - q @ (q.T @ basis)
+        u, sv, _ = np.linalg.svd(basis, full_matrices=False)
+        u = u[:, sv > 1e-8 * max(sv.max(), 1e-300)]
+        k = u.shape[1]
+        if not k or fit.dof - k < 2:
+            continue
+        proj = u @ (u.T @ r)
+        drop = float(proj @ proj)
+        rest = max(fit.chi2 - drop, 1e-300)
+        F = (drop / k) / (rest / (fit.dof - k))
+        p = float(stats.f.sf(F, k, fit.dof - k))
+        smooth = proj * s
+        out[name] = {'p': p, 'F': float(F), 'terms': int(k),
+                     'rms_mg': float(1000.0 * np.sqrt(np.mean(smooth ** 2)) / G0),
+                     'max_mg': float(1000.0 * np.max(np.abs(smooth)) / G0),
+                     'significant': bool(p < PROBE_P), '_x': values, '_smooth': smooth}
+    return out
+
+
 def _separation_advice(a, b, c):
     pair = {a, b}
     if 'bias_drift' in pair and pair & {'temperature_bias', 'temperature_scale'}:
@@ -570,7 +890,7 @@ def min_windows(baseline):
 
 
 def diagnose_windows(windows, baseline='ml', gravity=9.80665, rate_hz=None, rng=None,
-                     replicates=20, inflation=1.0, max_steps=4):
+                     replicates=0, inflation=1.0, max_steps=4, noise=None, min_effect_mg=None):
     """
     Run the model-gap workflow on static windows (also used by the calibration node).
 
@@ -579,10 +899,15 @@ def diagnose_windows(windows, baseline='ml', gravity=9.80665, rate_hz=None, rng=
     :param gravity: local gravity, m/s².
     :param rate_hz: sample rate, Hz; only for the noise density in the summary.
     :param rng: numpy Generator for the re-simulations (default seeded 0).
-    :param replicates: re-simulations of the final model for its null gap distribution
-        (0 for speed: the chi² approximation then gives the noise limit).
-    :param inflation: variance factor of window means over white noise (>= 1).
+    :param replicates: re-simulations of the final model, reported next to the analytic
+        null (the verdict uses the analytic F law, which has no simulation noise).
+    :param inflation: variance factor of window means over white noise (scalar or (3,)),
+        used when ``noise`` is not given; the noise level then counts as known.
     :param max_steps: most effects added.
+    :param noise: WindowNoise measured in the samples (``window_noise``), or None.
+    :param min_effect_mg: practical threshold, mg: an effect is named only when its
+        worst-case error in corrected acceleration exceeds it (default: the baseline
+        fit's predicted accuracy, at least ``MIN_EFFECT_MG``).
     :returns: DiagnoseResult.
     :raises CalibrationError: too few windows, or the baseline cannot be fitted.
     """
@@ -594,10 +919,18 @@ def diagnose_windows(windows, baseline='ml', gravity=9.80665, rate_hz=None, rng=
             f'needs at least {min_windows(baseline)} poses (more when effects are to be '
             'told apart)')
     rng = np.random.default_rng(0) if rng is None else rng
-    c = conditions_from_windows(windows, gravity, inflation)
+    if noise is None:
+        noise = WindowNoise(np.broadcast_to(np.asarray(inflation, float), (3,)).copy(),
+                            np.zeros(3), ['given'] * 3)
+    c = conditions_from_windows(windows, gravity, noise.inflation)
     start_cal = calibrate(c.readings, gravity, baseline, windows.count.astype(float))
     model, fit = _fit_model(baseline, [], c, model_start(baseline, start_cal))
-    context = {'temp_span': c.temp_span, 'time_span': c.time_span, 'windows': len(windows)}
+    accuracy = predicted_accuracy_mg(model, fit)
+    threshold = (float(min_effect_mg) if min_effect_mg is not None
+                 else max(MIN_EFFECT_MG, accuracy))
+    has_temp = bool(np.all(np.isfinite(np.asarray(windows.temp, float))))
+    context = {'temp_span': c.temp_span, 'time_span': c.time_span, 'windows': len(windows),
+               'has_temp': has_temp}
     skipped = {}
     candidates = []
     for name, effect in EFFECTS.items():
@@ -612,8 +945,9 @@ def diagnose_windows(windows, baseline='ml', gravity=9.80665, rate_hz=None, rng=
         else:
             candidates.append(name)
     result = DiagnoseResult(baseline, len(windows), c, [fit], skipped=skipped,
-                            noise_inflation=inflation, noise_std=windows.noise_std,
-                            rate_hz=rate_hz)
+                            window_noise=noise, noise_std=windows.noise_std,
+                            rate_hz=rate_hz, threshold_mg=threshold,
+                            predicted_accuracy_mg=accuracy)
     n = len(c.readings)
     while candidates and len(result.steps) < max_steps:
         tried = []
@@ -630,42 +964,60 @@ def diagnose_windows(windows, baseline='ml', gravity=9.80665, rate_hz=None, rng=
             F = (drop / k) / max(new_fit.chi2 / new_fit.dof, 1e-300)
             p = float(stats.f.sf(F, k, new_fit.dof))
             bic = drop - k * np.log(n)
-            tried.append((drop, name, new_model, new_fit, F, p, bic))
-        supported = sorted((t for t in tried if t[5] < P_SUPPORT and t[6] > 0),
-                           key=lambda t: -t[0])
+            params = new_model.split(new_fit.x)[2][name]
+            worst = effect_worst_case_mg(new_model, new_fit.x, c, name, params)
+            tried.append({'effect': name, 'drop': drop, 'model': new_model, 'fit': new_fit,
+                          'F': float(F), 'p': p, 'bic': float(bic), 'worst_case_mg': worst,
+                          'significant': bool(p < P_SUPPORT and bic > 0),
+                          'large_enough': bool(worst > threshold)})
+        result.candidates = [{key: t[key] for key in ('effect', 'F', 'p', 'worst_case_mg',
+                                                      'significant', 'large_enough')}
+                             | {'delta_chi2': float(t['drop']), 'delta_bic': t['bic']}
+                             for t in tried]
+        result.below_threshold = [cand for cand in result.candidates
+                                  if cand['significant'] and not cand['large_enough']]
+        supported = sorted((t for t in tried if t['significant'] and t['large_enough']),
+                           key=lambda t: -t['drop'])
         if not supported:
             break
         # A tie (the columns are collinear in this session) goes to the effect with a
         # measured cause: temperature is recorded, a drift with time is the catch-all.
-        tied = [t for t in supported if t[0] >= (1 - 1e-3) * supported[0][0]]
-        tied.sort(key=lambda t: t[1] == 'bias_drift')
+        tied = [t for t in supported if t['drop'] >= (1 - 1e-3) * supported[0]['drop']]
+        tied.sort(key=lambda t: t['effect'] == 'bias_drift')
         supported.remove(tied[0])
         supported.insert(0, tied[0])
-        drop, name, new_model, new_fit, F, p, bic = supported[0]
+        best = supported[0]
+        name, new_model, new_fit, drop = best['effect'], best['model'], best['fit'], best['drop']
         a = model.true_accel(fit.x, c)
         directions = a / np.linalg.norm(a, axis=1, keepdims=True)
         T_new, _, all_params = new_model.split(new_fit.x)
         params = all_params[name]
         result.steps.append({
             'effect': name, 'gap_before': fit.gap, 'gap_after': new_fit.gap,
-            'evidence': {'F': float(F), 'p': p, 'delta_chi2': float(drop),
-                         'delta_bic': float(bic), 'params': params.tolist(),
+            'evidence': {'F': best['F'], 'p': best['p'], 'delta_chi2': float(drop),
+                         'delta_bic': best['bic'], 'params': params.tolist(),
                          'param_names': list(EFFECTS[name].param_names),
                          'unit': EFFECTS[name].unit,
                          'magnitude': EFFECTS[name].magnitude(params, gravity,
                                                               np.diag(T_new)),
+                         'worst_case_mg': best['worst_case_mg'],
                          'description': EFFECTS[name].description},
             'where': _where(fit.residuals, c, directions)})
         for rival in supported[1:]:
-            alike = column_correlation(model, fit, c, name, rival[1])
-            if rival[0] >= AMBIGUOUS_RATIO * drop or alike > COLLINEAR:
+            # A rival only when the two are confounded in this session's design: their
+            # signatures (Jacobian columns) correlate.
+            alike = column_correlation(model, fit, c, name, rival['effect'])
+            if alike > COLLINEAR:
                 result.ambiguities.append(
-                    f'{name} and {rival[1]} explain this session about equally well '
-                    f'(chi² drops {drop:.1f} and {rival[0]:.1f}; their signatures correlate '
-                    f'{alike:.2f}): ' + _separation_advice(name, rival[1], c))
+                    f'{name} and {rival["effect"]} are confounded in this session (their '
+                    f'signatures correlate {alike:.2f}; chi² drops {drop:.1f} and '
+                    f'{rival["drop"]:.1f}): '
+                    + _separation_advice(name, rival['effect'], c))
         model, fit = new_model, new_fit
         result.fits.append(fit)
         candidates.remove(name)
+    if fit.jac is not None:
+        result.probes = residual_probes(model, fit, c)
     result.null_gaps = _null_gaps(model, fit, c, rng, replicates) if replicates else []
     return result
 
@@ -676,7 +1028,8 @@ def model_start(baseline, cal):
 
 
 def diagnose(samples, baseline='ml', gravity=9.80665, min_duration_s=0.5,
-             threshold_factor=3.0, max_weight_s=None, replicates=20, rng=None):
+             threshold_factor=3.0, max_weight_s=None, replicates=0, rng=None,
+             min_effect_mg=None):
     """
     Run the model-gap workflow on a recording.
 
@@ -687,16 +1040,24 @@ def diagnose(samples, baseline='ml', gravity=9.80665, min_duration_s=0.5,
     :param threshold_factor: stillness threshold over the noise floor.
     :param max_weight_s: unused for the gap (each window's own noise weighs it);
         accepted for symmetry with ``fit``.
-    :param replicates: re-simulations for the null gap distribution.
+    :param replicates: re-simulations reported next to the analytic null.
     :param rng: numpy Generator (default seeded 0).
+    :param min_effect_mg: practical threshold, mg (see ``diagnose_windows``).
     :returns: DiagnoseResult.
     :raises CalibrationError: too few windows, or the baseline cannot be fitted.
     """
     windows = detect_static_windows(samples, min_duration_s=min_duration_s,
                                     threshold_factor=threshold_factor)
     rate = samples.rate_hz
-    return diagnose_windows(windows, baseline, gravity, rate, rng, replicates,
-                            _noise_inflation(samples, windows))
+    noise = window_noise(samples, windows)
+    if noise.moving.any() and (~noise.moving).sum() >= min_windows(baseline):
+        windows = windows.select(~noise.moving)
+    else:
+        noise.moving[:] = False
+    result = diagnose_windows(windows, baseline, gravity, rate, rng, replicates,
+                              noise=noise, min_effect_mg=min_effect_mg)
+    result.dropped_windows = int(noise.moving.sum())
+    return result
 
 
 def held_out_check(windows, result, inflation=None):
@@ -711,11 +1072,13 @@ def held_out_check(windows, result, inflation=None):
 
     :param windows: StaticWindows the result came from.
     :param result: DiagnoseResult.
-    :param inflation: noise inflation (default the result's).
+    :param inflation: noise inflation, scalar or (3,) (default the result's).
     :returns: dict with 'baseline_rms' and 'with_effects_rms' (m/s²), 'effects',
         'fit_windows' and 'test_windows'.
     """
-    inflation = result.noise_inflation if inflation is None else inflation
+    if inflation is None:
+        inflation = (result.window_noise.inflation if result.window_noise is not None
+                     else 1.0)
     c = conditions_from_windows(windows, result.conditions.gravity, inflation)
     even = np.arange(len(windows)) % 2 == 0
     train, test = c.subset(even), c.subset(~even)

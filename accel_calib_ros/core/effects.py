@@ -142,6 +142,8 @@ class TemperatureBias(PerAxisEffect):
     unit = 'm/s² per °C'
 
     def applicable(self, context, baseline):
+        if not context.get('has_temp', True):
+            return 'no temperature column'
         span = context.get('temp_span', 0.0)
         return '' if span >= 3.0 else f'temperature spans only {span:.1f} °C'
 
