@@ -116,6 +116,8 @@ def build_parser():
     p.add_argument('--json', action='store_true', help='print one JSON object')
     _add_window_args(p)
 
+    _add_allan_parser(sub)
+
     p = sub.add_parser('simulate-device',
                        help='stream MPU9250 serial frames of a virtual sensor on a pty')
     try:
@@ -303,6 +305,28 @@ def cmd_diagnose(args, out):
     return 0
 
 
+def _add_allan_parser(sub):
+    p = sub.add_parser('allan', help='Allan deviation of a still recording (noise terms)')
+    _add_data_args(p)
+    p.add_argument('--plot', help='write the log-log Allan deviation plot to this PNG')
+    p.add_argument('--json', action='store_true', help='print one JSON object')
+
+
+def cmd_allan(args, out):
+    from .core.allan import allan
+    if args.plot and os.path.abspath(args.plot) == os.path.abspath(args.data):
+        raise UsageError('accel-calib allan: --plot must not overwrite the data file')
+    result = allan(_load(args).validate())
+    if args.plot:
+        from .report import write_allan_plot
+        write_allan_plot(result, args.plot)
+    if args.json:
+        out(result.summary())
+    else:
+        print(result.text())
+    return 0
+
+
 def cmd_simulate_device(args, out):
     if args.run_device is None:
         raise UsageError(f'simulate-device is not available: {args.device_error}')
@@ -311,6 +335,7 @@ def cmd_simulate_device(args, out):
 
 COMMANDS = {'fit': cmd_fit, 'apply': cmd_apply, 'simulate': cmd_simulate, 'diagnose': cmd_diagnose}
 COMMANDS['simulate-device'] = cmd_simulate_device
+COMMANDS['allan'] = cmd_allan
 
 
 def _plain(value):

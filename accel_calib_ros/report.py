@@ -148,3 +148,28 @@ def write_report(result, folder):
         lines += [f'### Residuals: {label}', '', f'![{label}]({name})', '']
     atomic_write_text(os.path.join(folder, 'report.md'), '\n'.join(lines))
     return os.path.join(folder, 'report.md')
+
+
+def write_allan_plot(result, path):
+    """Write a log-log plot of the Allan deviation per axis with its 95 % band (PNG)."""
+    groups = [[i for i, a in enumerate(result.axes) if a.startswith('a')],
+              [i for i, a in enumerate(result.axes) if a.startswith('g')]]
+    groups = [g for g in groups if g]
+    fig, axes = plt.subplots(1, len(groups), figsize=(6 * len(groups), 4.2), squeeze=False)
+    for ax, group in zip(axes[0], groups):
+        for i in group:
+            line, = ax.loglog(result.tau, result.adev[i], label=result.axes[i])
+            ax.fill_between(result.tau, result.adev_ci[i, :, 0], result.adev_ci[i, :, 1],
+                            color=line.get_color(), alpha=0.2)
+            ax.loglog(result.tau, result.noise_density[i] / np.sqrt(result.tau), ':',
+                      color=line.get_color(), lw=0.8)
+        unit = 'm/s²' if result.axes[group[0]].startswith('a') else 'rad/s'
+        ax.set_xlabel('cluster time τ, s')
+        ax.set_ylabel(f'Allan deviation, {unit}')
+        ax.grid(True, which='both', alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle('Allan deviation (dotted: white noise N/√τ; band: 95 %)')
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90, format='png')
+    plt.close(fig)
