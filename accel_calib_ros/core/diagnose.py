@@ -201,7 +201,6 @@ class WindowNoise:
     method: list
     moving: np.ndarray = None
 
-
     @property
     def dof(self):
         """Effective degrees of freedom of the noise level (chi² of 2 / relative variance)."""
