@@ -26,7 +26,7 @@ from accel_calib_ros.core.diagnose import diagnose, diagnose_windows, held_out_c
 from accel_calib_ros.core.effects import EFFECTS
 from accel_calib_ros.core.errors import CalibrationError
 from accel_calib_ros.core.simulate import (
-    mpu9250_like, random_directions, simulate_session, simulate_static_windows,
+    G0, mpu9250_like, random_directions, simulate_session, simulate_static_windows,
     with_datasheet_effect)
 from accel_calib_ros.core.windows import detect_static_windows
 import numpy as np
@@ -175,6 +175,182 @@ def false_alarms_samples(trials):
               f'{np.median(inflation):.2f}')
 
 
+# -- round two: practical size, outside the library, vibration, 1 kHz DLPF, stability ----
+
+def outside_terms():
+    """Return disagreements the library lacks: name -> f(directions, temp, time) (N, 3) m/s²."""
+    mg = G0 / 1000.0
+
+    def temp_squared(d, temp, t):
+        u = (temp - temp.mean()) / max(np.ptp(temp) / 2, 1e-9)
+        return np.outer(u ** 2, [3.0, -2.0, 2.5]) * mg
+
+    def bias_step(d, temp, t):
+        return np.outer(t > np.median(t), [3.0, 2.0, -2.5]) * mg
+
+    def cubic_direction(d, temp, t):
+        return np.column_stack([d[:, 1] * d[:, 2], d[:, 0] * d[:, 2] ** 2,
+                                d[:, 0] * d[:, 1] * d[:, 2]]) * np.array([8.0, -6.0, 9.0]) * mg
+
+    def periodic_time(d, temp, t):
+        return np.outer(np.sin(2 * np.pi * t / (np.ptp(t) / 3)), [3.0, 2.0, 2.5]) * mg
+
+    return {'bias ∝ temperature²': (temp_squared, 'temperature'),
+            'bias step (mount shift)': (bias_step, 'time'),
+            'orientation term beyond T': (cubic_direction, 'direction'),
+            'periodic bias in time': (periodic_time, 'time')}
+
+
+def outside_library(trials):
+    print(f'\n== Residuals from effects outside the library (window level, {trials} each; '
+          'hump temperature; a few mg)')
+    print(f'  {"class":28s} {"NOT explained":>14s} {"says outside":>13s} '
+          f'{"right probe":>12s} {"named a library effect":>23s}')
+    for label, (term, probe) in outside_terms().items():
+        rng = seeded(f'outside {label}')
+        unexplained = outside = right = named = 0
+        for _ in range(trials):
+            sensor = mpu9250_like(rng)
+            directions = random_directions(WINDOWS, rng)
+            windows = simulate_static_windows(sensor, directions, rng, HOLD_S, temperature=hump)
+            windows.mean[:] = windows.mean + term(directions, windows.temp, windows.t_mid)
+            found = diagnose_windows(windows, 'ml', rng=rng)
+            unexplained += not found.explained
+            outside += found.outside_library
+            right += bool(found.probes.get(probe, {}).get('significant'))
+            named += bool(found.missing_effects)
+        print(f'  {label:28s} {unexplained / trials:14.0%} {outside / trials:13.0%} '
+              f'{right / trials:12.0%} {named / trials:23.0%}')
+
+
+def long_pauses(trials):
+    print(f'\n== Long pauses: 24 poses 20 min apart (8 h), windows of 5 min at 100 Hz, a '
+          f'bias drift of 0.6 mg over the session ({trials} sessions)')
+    named = unexplained = 0
+    worst = []
+    for _ in range(trials):
+        rng = seeded(f'pauses {_}')
+        sensor = mpu9250_like(rng)
+        span = 24 * 20 * 60.0
+        sensor.bias_drift = rng.choice([-1.0, 1.0], 3) * 0.6e-3 * G0 / span
+        windows = simulate_static_windows(sensor, random_directions(24, rng), rng,
+                                          hold_s=20 * 60.0, count=30000, temperature=25.0)
+        found = diagnose_windows(windows, 'ml', rng=rng)
+        named += bool(found.missing_effects)
+        unexplained += not found.explained
+        worst += [c['worst_case_mg'] for c in found.candidates if c['effect'] == 'bias_drift']
+    print(f'  named something {named / trials:.0%}, NOT explained {unexplained / trials:.0%}; '
+          f'bias_drift worst case {np.median(worst):.2f} mg (median; threshold 1 mg)')
+
+
+def sample_session(rng, rate=100.0, effect=None, vibration=0.0, dlpf_hz=None, poses=30,
+                   hold_s=3.0, temperature=None, noise_rng=None):
+    """
+    Simulate samples; optional band-limited vibration (RMS m/s²) and a 2-pole DLPF.
+
+    With ``noise_rng`` the sensor noise (and vibration) comes from it, everything else
+    from ``rng``: the same session with another noise draw.
+    """
+    from scipy import signal
+    sensor = mpu9250_like(rng, rate_hz=rate)
+    baseline = 'ml'
+    if effect:
+        sensor = with_datasheet_effect(sensor, effect, rng)
+        baseline = 'gn' if effect == 'nonorthogonality' else 'ml'
+    if temperature is None:
+        temperature = 25.0 if effect == 'bias_drift' else (lambda t: 25 + 12 * np.sin(t / 30))
+    std = sensor.noise_std.copy()
+    if noise_rng is not None:
+        sensor.noise_std = np.zeros(3)
+    s = simulate_session(sensor, random_directions(poses, rng), rng, hold_s=hold_s,
+                         move_s=1.0, rate_hz=rate, temperature=temperature)
+    accel = s.samples.accel
+    if noise_rng is not None:
+        accel += noise_rng.standard_normal(accel.shape) * std
+        rng = noise_rng
+    if vibration:
+        high = min(0.45 * rate, 120.0)
+        b, a = signal.butter(2, [15.0 / (rate / 2), high / (rate / 2)], 'bandpass')
+        shake = signal.lfilter(b, a, rng.standard_normal(accel.shape), axis=0)
+        accel += shake / shake.std(axis=0) * vibration
+    if dlpf_hz:
+        b, a = signal.butter(2, dlpf_hz / (rate / 2))
+        zi = signal.lfilter_zi(b, a)[:, None] * accel[:1]
+        accel[:] = signal.lfilter(b, a, accel, axis=0, zi=zi)[0]
+    return s.samples, baseline
+
+
+def sample_classes(trials):
+    print(f'\n== Sample level: vibration and 1 kHz DLPF ({trials} sessions each; 30 poses of '
+          '3 s; detection = the hidden effect named first at 1x datasheet size)')
+    cases = [('clean 100 Hz', {}), ('clean 1 kHz, no DLPF', {'rate': 1000.0}),
+             ('1 kHz, DLPF 184 Hz', {'rate': 1000.0, 'dlpf_hz': 184.0}),
+             ('1 kHz, DLPF 41 Hz', {'rate': 1000.0, 'dlpf_hz': 41.0}),
+             ('1 kHz, DLPF 10 Hz', {'rate': 1000.0, 'dlpf_hz': 10.0}),
+             ('vibration 0.3 m/s² RMS, 100 Hz', {'vibration': 0.3}),
+             ('vibration 1 m/s² RMS, 1 kHz', {'rate': 1000.0, 'vibration': 1.0})]
+    print(f'  {"class":34s} {"false alarm":>11s} {"NOT expl.":>9s} {"gap (median)":>12s}'
+          f' {"detect temperature_bias":>23s} {"detect scale_nonlin.":>20s}')
+    for label, kw in cases:
+        rng = seeded(f'samples {label}')
+        alarms = unexplained = 0
+        gaps = []
+        for _ in range(trials):
+            samples, _b = sample_session(rng, **kw)
+            found = diagnose(samples, 'ml', rng=rng)
+            alarms += bool(found.missing_effects)
+            unexplained += not found.explained
+            gaps.append(found.gap_after)
+        hits = []
+        for effect in ('temperature_bias', 'scale_nonlinearity'):
+            n = 0
+            for _ in range(trials):
+                samples, baseline = sample_session(rng, effect=effect, **kw)
+                n += diagnose(samples, baseline, rng=rng).missing_effects[:1] == [effect]
+            hits.append(n / trials)
+        print(f'  {label:34s} {alarms / trials:11.0%} {unexplained / trials:9.0%} '
+              f'{np.median(gaps):12.2f} {hits[0]:23.0%} {hits[1]:20.0%}')
+
+
+def stability(pairs, sample_pairs):
+    print(f'\n== Stability: the same session (sensor, poses, temperatures) with two noise '
+          f'seeds; same verdict (effects named and explained/not)')
+    for label, effect, scale in (('null, window level', None, 0), ('null, ramp temperature',
+                                                                      None, 0),
+                                 ('temperature_bias 0.25x', 'temperature_bias', 0.25),
+                                 ('bias_drift 0.5x', 'bias_drift', 0.5)):
+        rng = seeded(f'stable {label}')
+        same = 0
+        for _ in range(pairs):
+            sensor = mpu9250_like(rng)
+            if effect:
+                sensor = with_datasheet_effect(sensor, effect, rng, scale)
+            directions = random_directions(WINDOWS, rng)
+            temperature = ramp if 'ramp' in label else (25.0 if effect == 'bias_drift' else hump)
+            verdicts = []
+            for seed in (1, 2):
+                noise_rng = np.random.default_rng(seed + 7 * _)
+                windows = simulate_static_windows(sensor, directions, noise_rng, HOLD_S,
+                                                  temperature=temperature)
+                found = diagnose_windows(windows, 'ml', rng=noise_rng)
+                verdicts.append((tuple(found.missing_effects), found.explained))
+            same += verdicts[0] == verdicts[1]
+        print(f'  {label:28s} {same}/{pairs} pairs agree ({same / pairs:.1%})')
+    rng = seeded('stable samples')
+    same = 0
+    for k in range(sample_pairs):
+        seed = int(rng.integers(1 << 30))
+        verdicts = []
+        for noise_seed in (1, 2):
+            samples, _b = sample_session(np.random.default_rng(seed), rate=1000.0,
+                                         dlpf_hz=41.0, poses=24,
+                                         noise_rng=np.random.default_rng(noise_seed + 100 * k))
+            found = diagnose(samples, 'ml')
+            verdicts.append((tuple(found.missing_effects), found.explained))
+        same += verdicts[0] == verdicts[1]
+    print(f'  {"null, 1 kHz DLPF 41 Hz samples":28s} {same}/{sample_pairs} pairs agree')
+
+
 def speed():
     rng = seeded('speed')
     sensor = mpu9250_like(rng)
@@ -228,15 +404,31 @@ def real():
 def main():
     parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     parser.add_argument('--trials', type=int, default=100)
+    parser.add_argument('--quick', action='store_true',
+                        help='few trials per cell (about a minute): a smoke run, noisy rates')
+    parser.add_argument('--only', help='comma-separated sections: detection, extras, ramp, '
+                        'nulls, samples, outside, pauses, classes, stability, speed, real')
     args = parser.parse_args()
-    detection(max(args.trials // 2, 10))
-    extras_and_pairs(max(args.trials // 5, 10))
-    ramp_ambiguity(max(args.trials // 5, 10))
-    false_alarms(args.trials)
-    false_alarms_samples(max(args.trials // 5, 10))
-    print('\n== Speed (calibration node budget: < 1 s)')
-    speed()
-    real()
+    trials = 10 if args.quick else args.trials
+    sections = {
+        'detection': lambda: detection(max(trials // 2, 5)),
+        'extras': lambda: extras_and_pairs(max(trials // 5, 5)),
+        'ramp': lambda: ramp_ambiguity(max(trials // 5, 5)),
+        'nulls': lambda: false_alarms(trials),
+        'samples': lambda: false_alarms_samples(max(trials // 5, 3)),
+        'outside': lambda: outside_library(max(trials // 5, 5)),
+        'pauses': lambda: long_pauses(max(trials // 5, 5)),
+        'classes': lambda: sample_classes(max(trials // 10, 3)),
+        'stability': lambda: stability(2 * trials if not args.quick else 20,
+                                       max(trials // 5, 3)),
+        'speed': speed, 'real': real}
+    chosen = args.only.split(',') if args.only else list(sections)
+    for name in chosen:
+        if name not in sections:
+            parser.error(f'unknown section {name!r}')
+        if name == 'speed':
+            print('\n== Speed (calibration node budget: < 1 s)')
+        sections[name]()
 
 
 if __name__ == '__main__':

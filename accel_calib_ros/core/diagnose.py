@@ -265,6 +265,7 @@ class DiagnoseResult:
     below_threshold: list = field(default_factory=list)
     probes: dict = field(default_factory=dict)
     dropped_windows: int = 0
+    partial: list = field(default_factory=list)
 
     @property
     def missing_effects(self):
@@ -410,6 +411,7 @@ class DiagnoseResult:
             'threshold_mg': self.threshold_mg,
             'predicted_accuracy_mg': self.predicted_accuracy_mg,
             'candidates': self.candidates, 'below_threshold': self.below_threshold,
+            'partial': self.partial,
             'probes': {k: {kk: vv for kk, vv in v.items() if not kk.startswith('_')}
                        for k, v in self.probes.items()},
             'null': null, 'null_gap_limit': self.null_limit,
@@ -438,6 +440,11 @@ class DiagnoseResult:
         for cand in self.below_threshold:
             lines.append(f'detectable but below the practical threshold: {cand["effect"]} '
                          f'(up to {cand["worst_case_mg"]:.2g} mg, p = {cand["p"]:.1e})')
+        for item in self.partial:
+            lines.append(f'not named: {item["effect"]} (up to {item["worst_case_mg"]:.2g} mg) '
+                         f'explains only part of a dependence on {item["variable"]} of another '
+                         f'shape ({item["left_rms_mg"]:.2g} mg RMS left, p = '
+                         f'{item["left_p"]:.1e})')
         for note in self.ambiguities:
             lines.append('note: ' + note)
         for name, reason in self.skipped.items():
@@ -820,8 +827,9 @@ def residual_probes(model, fit, c):
 
     Four smooth, nonparametric bases are fitted to the noise-normalised residuals, each
     after removing what the fitted model can already absorb (its Jacobian): a cosine
-    series in time and in temperature, low-degree spherical harmonics over the gravity
-    direction, and a cosine series in the magnitude of the raw reading |y|. A nested
+    series in time and in temperature (alone and times each gravity-direction component,
+    since an offset o(t) moves |a| by n . o(t)), low-degree spherical harmonics over the
+    gravity direction, and a cosine series in the magnitude of the raw reading |y|. A nested
     F-test gives each its significance. A probe that is significant while no library
     effect is says which variable the missing cause follows.
 
@@ -836,15 +844,22 @@ def residual_probes(model, fit, c):
     q = np.linalg.qr(fit.jac)[0] if fit.jac is not None and fit.jac.shape[1] else \
         np.zeros((n, 0))
     room = max(fit.dof - 3, 0)
-    smooth_degree = int(min(6, room // 3))
+    smooth_degree = int(min(6, room // 8))
     sphere_degree = 4 if room >= 40 else 3 if room >= 25 else 2 if room >= 12 else 0
+
+    def offset_and_scale(values):
+        # An offset o(v) changes |a| by n . o(v); a scale change by |a| s(v): the smooth
+        # times each direction component, and alone.
+        basis = _cosine_basis(values, smooth_degree)
+        return np.hstack([basis] + [basis * directions[:, [i]] for i in range(3)])
+
     bases = {
-        'time': (c.time, _cosine_basis(c.time, smooth_degree)),
-        'temperature': (c.temp, _cosine_basis(c.temp, smooth_degree)),
+        'time': (c.time, offset_and_scale(c.time)),
+        'temperature': (c.temp, offset_and_scale(c.temp)),
         'direction': (directions, _sphere_basis(directions, sphere_degree)
                       if sphere_degree else np.zeros((n, 0))),
         'magnitude': (np.linalg.norm(c.readings, axis=1),
-                      _cosine_basis(np.linalg.norm(c.readings, axis=1), min(smooth_degree, 3))),
+                      _cosine_basis(np.linalg.norm(c.readings, axis=1), 3)),
     }
     out = {}
     for name, (values, basis) in bases.items():
@@ -864,7 +879,7 @@ def residual_probes(model, fit, c):
         F = (drop / k) / (rest / (fit.dof - k))
         p = float(stats.f.sf(F, k, fit.dof - k))
         smooth = proj * s
-        out[name] = {'p': p, 'F': float(F), 'terms': int(k),
+        out[name] = {'p': p, 'F': float(F), 'terms': int(k), 'delta_chi2': drop,
                      'rms_mg': float(1000.0 * np.sqrt(np.mean(smooth ** 2)) / G0),
                      'max_mg': float(1000.0 * np.max(np.abs(smooth)) / G0),
                      'significant': bool(p < PROBE_P), '_x': values, '_smooth': smooth}
@@ -1017,8 +1032,54 @@ def diagnose_windows(windows, baseline='ml', gravity=9.80665, rate_hz=None, rng=
         candidates.remove(name)
     if fit.jac is not None:
         result.probes = residual_probes(model, fit, c)
+        _demote_partial(result, c)
+    model = Model(baseline, result.fits[-1].effects)
+    fit = result.fits[-1]
     result.null_gaps = _null_gaps(model, fit, c, rng, replicates) if replicates else []
     return result
+
+
+PARTIAL_SHARE = 0.25
+"""A named effect is withdrawn when its variable's probe still finds this share of its chi² drop."""
+
+
+def _demote_partial(result, c):
+    """
+    Withdraw named effects that only explain part of a dependence of another shape.
+
+    When the final gap is not within the noise and the nonparametric probe in an effect's
+    own variable (``Effect.variable``: time for ``bias_drift``, temperature for the
+    temperature effects) is still significant and still explains at least
+    ``PARTIAL_SHARE`` of the chi² the effect removed, the effect is a projection of
+    something the library
+    lacks (a step, a curve, a cycle), not the cause: it is moved to ``result.partial``
+    and the model is refitted without it.
+    """
+    if result.statistically_explained:
+        return
+    partial = []
+    for step in result.steps:
+        probe = result.probes.get(EFFECTS[step['effect']].variable)
+        worst = step['evidence']['worst_case_mg']
+        share = PARTIAL_SHARE * step['evidence']['delta_chi2']
+        if probe and probe['significant'] and probe['delta_chi2'] >= share:
+            partial.append({'effect': step['effect'], 'worst_case_mg': worst,
+                            'variable': EFFECTS[step['effect']].variable,
+                            'left_rms_mg': probe['rms_mg'], 'left_p': probe['p']})
+    if not partial:
+        return
+    gone = {p['effect'] for p in partial}
+    kept = [step for step in result.steps if step['effect'] not in gone]
+    fits = [result.fits[0]]
+    for step in kept:
+        effects = fits[-1].effects + [step['effect']]
+        start = np.concatenate([fits[-1].x, np.zeros(len(EFFECTS[step['effect']].param_names))])
+        _, new_fit = _fit_model(result.baseline, effects, c, start)
+        step['gap_before'], step['gap_after'] = fits[-1].gap, new_fit.gap
+        fits.append(new_fit)
+    result.steps, result.fits, result.partial = kept, fits, partial
+    model = Model(result.baseline, fits[-1].effects)
+    result.probes = residual_probes(model, fits[-1], c)
 
 
 def model_start(baseline, cal):

@@ -46,6 +46,8 @@ class Effect:
     description = ''
     param_names = ()
     unit = ''
+    variable = 'direction'
+    """The session variable the effect's residual follows (a ``diagnose`` probe name)."""
 
     def applicable(self, context, baseline):
         """Return '' when the session can show this effect, else the reason it cannot."""
@@ -140,6 +142,7 @@ class TemperatureBias(PerAxisEffect):
     description = 'the zero-g offset moves with temperature'
     param_names = ('c_x', 'c_y', 'c_z')
     unit = 'm/s² per °C'
+    variable = 'temperature'
 
     def applicable(self, context, baseline):
         if not context.get('has_temp', True):
@@ -161,6 +164,7 @@ class TemperatureScale(PerAxisEffect):
     description = 'the scale factor moves with temperature'
     param_names = ('s_x', 's_y', 's_z')
     unit = '1 per °C'
+    variable = 'temperature'
 
     applicable = TemperatureBias.applicable
 
@@ -178,6 +182,7 @@ class BiasDrift(PerAxisEffect):
     description = 'the zero-g offset wanders with time (not with temperature)'
     param_names = ('d_x', 'd_y', 'd_z')
     unit = 'm/s² per s'
+    variable = 'time'
 
     def applicable(self, context, baseline):
         span = context.get('time_span', 0.0)
