@@ -1087,6 +1087,40 @@ def model_start(baseline, cal):
     return Model(baseline, []).pack_baseline(cal.T, cal.bias)
 
 
+VIBRATION_CUTOFF_HZ = 5.0
+"""Low-pass corner used to find the poses under vibration (the statistics use raw samples)."""
+
+
+def _detect_windows(samples, min_duration_s, threshold_factor):
+    """
+    Find the static windows, also under vibration.
+
+    Strong vibration lifts the moving standard deviation so that the moves between poses
+    no longer stand out and poses merge. The detection therefore also runs on a
+    zero-phase low-passed copy (``VIBRATION_CUTOFF_HZ``, well below vibration, well
+    above a pose change); the one with more windows is kept. The window means and
+    scatters always come from the raw samples.
+    """
+    from scipy import signal
+    from .samples import Samples
+    from .windows import DEFAULTS, still_mask, windows_from_ranges, _runs
+    windows = detect_static_windows(samples, min_duration_s=min_duration_s,
+                                    threshold_factor=threshold_factor)
+    rate = samples.rate_hz
+    if not np.isfinite(rate) or rate < 8 * VIBRATION_CUTOFF_HZ or len(samples) < 100:
+        return windows
+    b, a = signal.butter(2, VIBRATION_CUTOFF_HZ / (rate / 2))
+    smooth = Samples(samples.t, signal.filtfilt(b, a, samples.accel, axis=0))
+    mask, floor = still_mask(smooth, threshold_factor=threshold_factor)
+    trim = int(round(DEFAULTS['trim_s'] * rate))
+    starts, stops = _runs(mask)
+    starts, stops = starts + trim, stops - trim
+    keep = stops - starts >= max(int(round(min_duration_s * rate)), 2)
+    if keep.sum() <= len(windows):
+        return windows
+    return windows_from_ranges(samples, starts[keep], stops[keep], floor)
+
+
 def diagnose(samples, baseline='ml', gravity=9.80665, min_duration_s=0.5,
              threshold_factor=3.0, max_weight_s=None, replicates=0, rng=None,
              min_effect_mg=None):
@@ -1106,8 +1140,7 @@ def diagnose(samples, baseline='ml', gravity=9.80665, min_duration_s=0.5,
     :returns: DiagnoseResult.
     :raises CalibrationError: too few windows, or the baseline cannot be fitted.
     """
-    windows = detect_static_windows(samples, min_duration_s=min_duration_s,
-                                    threshold_factor=threshold_factor)
+    windows = _detect_windows(samples, min_duration_s, threshold_factor)
     rate = samples.rate_hz
     noise = window_noise(samples, windows)
     if noise.moving.any() and (~noise.moving).sum() >= min_windows(baseline):
