@@ -13,7 +13,7 @@ import sys
 
 import numpy as np
 
-from .core.calibration import calibrate, Calibration, METHODS
+from .core.calibration import calibrate, METHODS
 from .core.errors import CalibrationError, InputError
 from .core.samples import Samples
 from .core.windows import DEFAULTS, detect_static_windows
@@ -176,7 +176,8 @@ def cmd_fit(args, out):
     extra = {'mode': args.mode, 'samples': len(samples), 'residual_rms_uncalibrated': raw_resid,
              'output': args.output}
     if args.output:
-        cal.save(args.output)
+        from .dataio.calibration_file import save_calibration
+        save_calibration(cal, args.output)
     for problem in cal.physical_problems():
         print(f'accel-calib: warning: {problem} (are the data in m/s²?)', file=sys.stderr)
     summary = _fit_summary(cal, extra)
@@ -204,7 +205,8 @@ def cmd_fit(args, out):
 
 def cmd_apply(args, out):
     from .dataio.recording import write_samples_csv
-    cal = Calibration.load(args.calibration)
+    from .dataio.calibration_file import load_calibration
+    cal = load_calibration(args.calibration)
     samples = _load(args)
     if cal.thermal is not None and cal.thermal.usable and samples.temp is None:
         print('accel-calib: warning: calibration has temperature tables but the data have '

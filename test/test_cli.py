@@ -7,8 +7,8 @@ import subprocess
 import sys
 
 from accel_calib_ros.cli import main
-from accel_calib_ros.core.calibration import Calibration
 from accel_calib_ros.core.simulate import mpu9250_like, random_directions, simulate_session
+from accel_calib_ros.dataio.calibration_file import load_calibration
 import numpy as np
 import peer_data
 import pytest
@@ -50,7 +50,7 @@ def test_simulate_fit_apply_round_trip(capsys, session_csv, tmp_path):
     code, out, err = run(capsys, 'apply', calib, session_csv, '-o', corrected)
     assert code == 0, err
     data = np.genfromtxt(corrected, delimiter=',', names=True)
-    cal = Calibration.load(calib)
+    cal = load_calibration(calib)
     raw = np.genfromtxt(session_csv, delimiter=',', names=True)
     expect = cal.correct(np.column_stack([raw['ax'], raw['ay'], raw['az']]))
     np.testing.assert_allclose(np.column_stack([data['ax'], data['ay'], data['az']]),

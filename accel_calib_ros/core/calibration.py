@@ -1,5 +1,5 @@
 """
-The calibration model: fit it, apply it, check it, save and load it.
+Fit the calibration model to static observations.
 
 Convention (spec section 3)::
 
@@ -8,216 +8,24 @@ Convention (spec section 3)::
 
 ``T`` is upper triangular and dimensionless (scale x non-orthogonality, Sun & Xu
 eq. 1-4), ``bias`` in m/s², ``drift`` from the temperature-band tables (zero when
-there are none). Files are versioned, human-readable YAML with units in the keys.
+there are none). The :class:`~accel_calib_ros.core.model.Calibration` data class
+lives in ``core.model`` (re-exported here); files are read and written by
+``accel_calib_ros.dataio.calibration_file``.
 """
 
-from dataclasses import dataclass, field
-import datetime
-import os
 import time
 
 import numpy as np
-import yaml
 
 from .ellipsoid import fit_ellipsoid
 from .errors import CalibrationError, InputError
 from .gn import fit_gn
-from .ml import fit_ml, fit_ml_bias_corrected, PARAMETER_NAMES
-from .thermal import fit_thermal_table, ThermalTable
+from .ml import fit_ml, fit_ml_bias_corrected
+from .model import Calibration, METHODS
+from .thermal import fit_thermal_table
 from .windows import distinct_directions
 
-FORMAT = 'accel_calib_ros/calibration'
-VERSION = 1
-METHODS = ('ml', 'ml-bc', 'gn', 'ellipsoid')
-
-
-@dataclass
-class Calibration:
-    """
-    A fitted accelerometer calibration (see module docstring for the model).
-
-    :param T: (3, 3) upper triangular, dimensionless.
-    :param bias: (3,) m/s².
-    :param gravity: local gravity magnitude used for the fit, m/s².
-    :param covariance: (9, 9) covariance of (T upper row-major, bias), or None.
-    :param residual_rms: RMS of |corrected| - gravity over the observations, m/s².
-    :param noise_std: (3,) per-sample noise measured inside static windows, m/s².
-    """
-
-    T: np.ndarray
-    bias: np.ndarray
-    gravity: float = 9.80665
-    method: str = 'ml'
-    covariance: np.ndarray = None
-    residual_rms: float = float('nan')
-    noise_std: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
-    observations: int = 0
-    iterations: int = 0
-    converged: bool = True
-    seconds: float = 0.0
-    trace: list = field(default_factory=list)
-    thermal: ThermalTable = None
-    created: str = ''
-    source: str = ''
-
-    def __post_init__(self):
-        self.T = np.asarray(self.T, dtype=float).reshape(3, 3)
-        self.bias = np.asarray(self.bias, dtype=float).reshape(3)
-        self.noise_std = np.broadcast_to(np.asarray(self.noise_std, float), (3,)).copy()
-        if not self.created:
-            self.created = datetime.datetime.now(datetime.timezone.utc).isoformat(
-                timespec='seconds')
-
-    # -- physics -----------------------------------------------------------------------
-    @property
-    def scale(self):
-        """Sensitivity of each axis (row norms of T), raw per true, dimensionless (3,)."""
-        return np.linalg.norm(self.T, axis=1)
-
-    @property
-    def nonorthogonality_deg(self):
-        """Angles between the sensitive axes minus 90°, (xy, xz, yz) in degrees."""
-        axes = self.T / self.scale[:, None]
-        pairs = ((0, 1), (0, 2), (1, 2))
-        return np.array([90.0 - np.degrees(np.arccos(np.clip(axes[i] @ axes[j], -1, 1)))
-                         for i, j in pairs])
-
-    def drift(self, raw, temp=None):
-        """Return the temperature drift, m/s² (N, 3), of raw readings (N, 3) at temps °C (N,)."""
-        raw = np.atleast_2d(np.asarray(raw, float))
-        if self.thermal is None or temp is None:
-            return np.zeros_like(raw)
-        return self.thermal.drift(raw, temp)
-
-    def correct(self, raw, temp=None):
-        """Calibrated acceleration (N, 3) m/s² from raw readings (N, 3) m/s²."""
-        raw = np.atleast_2d(np.asarray(raw, float))
-        return np.linalg.solve(self.T, (raw - self.bias - self.drift(raw, temp)).T).T
-
-    def distort(self, true, temp=None):
-        """Raw readings (N, 3) that this model predicts for true acceleration (N, 3)."""
-        true = np.atleast_2d(np.asarray(true, float))
-        raw = true @ self.T.T + self.bias
-        if self.thermal is not None and temp is not None:
-            for _ in range(4):            # drift depends on raw: fixed point, converges fast
-                raw = true @ self.T.T + self.bias + self.drift(raw, temp)
-        return raw
-
-    def acceleration_covariance(self):
-        """
-        3x3 covariance of one corrected sample at rest, (m/s²)², row-major.
-
-        Sensor noise mapped through T⁻¹ plus the parameter uncertainty propagated to
-        a gravity-sized vector, averaged over directions.
-        """
-        R = np.linalg.inv(self.T)
-        noise = np.where(np.isfinite(self.noise_std), self.noise_std, 0.0)
-        cov = R @ np.diag(noise ** 2) @ R.T
-        if self.covariance is not None and np.all(np.isfinite(self.covariance)):
-            rows, cols = np.triu_indices(3)
-            acc = np.zeros((3, 3))
-            for a0 in np.vstack([np.eye(3), -np.eye(3)]) * self.gravity:
-                J = np.zeros((3, 9))
-                for k, (i, j) in enumerate(zip(rows, cols)):
-                    J[:, k] = -R[:, i] * a0[j]
-                J[:, 6:] = -R
-                acc += J @ self.covariance @ J.T
-            cov = cov + acc / 6.0
-        return cov
-
-    def physical_problems(self, max_scale_error=0.2, max_cross_axis=0.1, max_bias_g=0.25):
-        """Reasons this calibration is not physical for an accelerometer in m/s², or []."""
-        problems = []
-        scale_error = np.abs(np.diag(self.T) - 1.0)
-        if np.any(scale_error > max_scale_error):
-            problems.append(f'scale error {scale_error.max():.1%} exceeds '
-                            f'{max_scale_error:.0%}')
-        cross = np.abs(self.T[np.triu_indices(3, 1)]) / np.diag(self.T)[[0, 0, 1]]
-        if np.any(cross > max_cross_axis):
-            problems.append(f'cross-axis term {cross.max():.1%} exceeds {max_cross_axis:.0%}')
-        if np.any(np.abs(self.bias) > max_bias_g * self.gravity):
-            problems.append(f'bias {np.abs(self.bias).max():.2f} m/s² exceeds '
-                            f'{max_bias_g} g')
-        return problems
-
-    # -- files -------------------------------------------------------------------------
-    def to_dict(self):
-        """Versioned, YAML-ready mapping with units in the key names."""
-        d = {
-            'format': FORMAT, 'version': VERSION, 'created': self.created, 'source': self.source,
-            'model': 'raw = T @ true + bias + drift(raw, temp); '
-            'true = inv(T) @ (raw - bias - drift(raw, temp))',
-            'method': self.method, 'gravity_m_s2': float(self.gravity),
-            'T': [[float(v) for v in row] for row in self.T],
-            'bias_m_s2': [float(v) for v in self.bias],
-            'scale': [float(v) for v in self.scale],
-            'nonorthogonality_deg': dict(zip(('xy', 'xz', 'yz'),
-                                             (float(v) for v in self.nonorthogonality_deg))),
-            'fit': {'observations': int(self.observations), 'iterations': int(self.iterations),
-                    'converged': bool(self.converged), 'seconds': float(self.seconds),
-                    'residual_rms_m_s2': float(self.residual_rms),
-                    'noise_std_m_s2': [float(v) for v in self.noise_std]},
-        }
-        if self.covariance is not None:
-            d['covariance'] = {
-                'order': list(PARAMETER_NAMES), 'units': 'T dimensionless, b in m/s2',
-                'matrix': [[float(v) for v in row] for row in self.covariance]}
-        if self.thermal is not None:
-            d['thermal'] = self.thermal.to_dict()
-        return d
-
-    @classmethod
-    def from_dict(cls, d):
-        """Build from :meth:`to_dict` output; InputError on anything malformed."""
-        if not isinstance(d, dict) or d.get('format') != FORMAT:
-            raise InputError(f'not an accel_calib_ros calibration file (format != {FORMAT})')
-        if d.get('version') != VERSION:
-            raise InputError(f'calibration file version {d.get("version")} is not supported '
-                             f'(this is version {VERSION})')
-        try:
-            fit = d.get('fit', {})
-            cov = d.get('covariance')
-            cal = cls(
-                T=np.asarray(d['T'], float), bias=np.asarray(d['bias_m_s2'], float),
-                gravity=float(d['gravity_m_s2']), method=str(d['method']),
-                covariance=None if cov is None else np.asarray(cov['matrix'], float),
-                residual_rms=float(fit.get('residual_rms_m_s2', float('nan'))),
-                noise_std=np.asarray(fit.get('noise_std_m_s2', [np.nan] * 3), float),
-                observations=int(fit.get('observations', 0)),
-                iterations=int(fit.get('iterations', 0)),
-                converged=bool(fit.get('converged', True)),
-                seconds=float(fit.get('seconds', 0.0)),
-                thermal=ThermalTable.from_dict(d['thermal']) if d.get('thermal') else None,
-                created=str(d.get('created', '')), source=str(d.get('source', '')))
-        except (KeyError, TypeError, ValueError) as err:
-            raise InputError(f'calibration file is malformed: {err!r}') from None
-        if not np.all(np.isfinite(cal.T)) or np.any(np.diag(cal.T) <= 0) \
-                or np.any(np.tril(cal.T, -1) != 0) or not np.all(np.isfinite(cal.bias)):
-            raise InputError('calibration file holds a non-physical T or bias')
-        return cal
-
-    def to_yaml(self):
-        """YAML text of :meth:`to_dict`."""
-        return yaml.safe_dump(self.to_dict(), sort_keys=False, default_flow_style=None,
-                              width=100)
-
-    def save(self, path):
-        """Write the calibration atomically (a reader never sees a half-written file)."""
-        from ..dataio.atomic import atomic_write_text
-        atomic_write_text(path, self.to_yaml())
-
-    @classmethod
-    def load(cls, path):
-        """Read a calibration file; InputError with a one-line reason if unusable."""
-        try:
-            with open(path, encoding='utf-8') as f:
-                data = yaml.safe_load(f)
-        except FileNotFoundError:
-            raise InputError(f'calibration file not found: {path}') from None
-        except (OSError, yaml.YAMLError) as err:
-            raise InputError(f'cannot read calibration file {path}: '
-                             f'{str(err).splitlines()[0]}') from None
-        return cls.from_dict(data)
+__all__ = ['Calibration', 'METHODS', 'calibrate', 'check_geometry', 'gravity_residuals']
 
 
 def gravity_residuals(cal_or_T, bias, readings, gravity, temps=None):
@@ -322,6 +130,6 @@ def calibrate(readings, gravity=9.80665, method='ml', weights=None, temps=None,
 
 
 def default_calibration_path():
-    """Where the nodes keep the calibration unless told otherwise."""
-    root = os.environ.get('ROS_HOME', os.path.join(os.path.expanduser('~'), '.ros'))
-    return os.path.join(root, 'accel_calib_ros', 'calibration.yaml')
+    """Where the nodes keep the calibration (moved to ``dataio.calibration_file``)."""
+    from ..dataio.calibration_file import default_calibration_path as path
+    return path()

@@ -41,6 +41,7 @@ class ThermalBand:
     :param windows: static windows in the band.
     :param status: 'ok', or why the band is not used.
     :param residual_rms: gravity-norm residual of the band's windows after correction, m/s².
+    :param gyro_bias: (3,) gyroscope bias measured in the band's windows, rad/s, or None.
     """
 
     low_c: float
@@ -52,23 +53,32 @@ class ThermalBand:
     windows: int
     status: str = 'ok'
     residual_rms: float = float('nan')
+    gyro_bias: np.ndarray = None
 
     def to_dict(self):
-        """Plain YAML-ready mapping."""
-        return {'low_c': float(self.low_c), 'high_c': float(self.high_c),
-                'temp_c': float(self.temp_c), 'windows': int(self.windows),
-                'status': self.status, 'residual_rms_m_s2': float(self.residual_rms),
-                'quadratic_per_m_s2': [float(v) for v in self.quadratic],
-                'linear': [float(v) for v in self.linear],
-                'offset_m_s2': [float(v) for v in self.offset]}
+        """Plain YAML-ready mapping (unknown values as None)."""
+        d = {'low_c': float(self.low_c), 'high_c': float(self.high_c),
+             'temp_c': float(self.temp_c), 'windows': int(self.windows),
+             'status': self.status,
+             'residual_rms_m_s2': (float(self.residual_rms)
+                                   if np.isfinite(self.residual_rms) else None),
+             'quadratic_per_m_s2': [float(v) for v in self.quadratic],
+             'linear': [float(v) for v in self.linear],
+             'offset_m_s2': [float(v) for v in self.offset]}
+        if self.gyro_bias is not None:
+            d['gyro_bias_rad_s'] = [float(v) for v in self.gyro_bias]
+        return d
 
     @classmethod
     def from_dict(cls, d):
-        """Inverse of :meth:`to_dict`."""
+        """Inverse of :meth:`to_dict` (no validation: see dataio.calibration_file)."""
+        rms = d.get('residual_rms_m_s2')
+        gyro = d.get('gyro_bias_rad_s')
         return cls(float(d['low_c']), float(d['high_c']), float(d['temp_c']),
                    np.asarray(d['quadratic_per_m_s2'], float), np.asarray(d['linear'], float),
                    np.asarray(d['offset_m_s2'], float), int(d['windows']), str(d['status']),
-                   float(d.get('residual_rms_m_s2', float('nan'))))
+                   float('nan') if rms is None else float(rms),
+                   None if gyro is None else np.asarray(gyro, float).reshape(3))
 
 
 @dataclass
@@ -108,6 +118,26 @@ class ThermalTable:
         drift = quad * raw ** 2 + lin * raw + off
         drift[~np.isfinite(temp)] = 0.0
         return drift
+
+    def gyro_bias(self, temp):
+        """
+        Gyroscope bias (N, 3) rad/s at temperatures ``temp`` (N,) °C, or None.
+
+        Linear between the temperatures of the bands that measured one, held constant
+        beyond them; NaN rows where the temperature is unknown. None when no band
+        carries a gyro bias.
+        """
+        temp = np.atleast_1d(np.asarray(temp, dtype=float))
+        bands = sorted((b for b in self.bands if b.gyro_bias is not None),
+                       key=lambda b: b.temp_c)
+        if not bands:
+            return None
+        nodes = np.array([b.temp_c for b in bands])
+        values = np.array([b.gyro_bias for b in bands])
+        out = np.column_stack([np.interp(np.nan_to_num(temp, nan=nodes[0]), nodes,
+                                         values[:, k]) for k in range(3)])
+        out[~np.isfinite(temp)] = np.nan
+        return out
 
     def to_dict(self):
         """Plain YAML-ready mapping."""

@@ -28,12 +28,13 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from .common import declare, integer, number, run, text
-from ..core.calibration import calibrate, default_calibration_path
+from ..core.calibration import calibrate
 from ..core.diagnose import diagnose_windows
 from ..core.errors import CalibrationError, InputError
 from ..core.ml import cramer_rao_bound, fit_ml
 from ..core.thermal import MIN_WINDOWS_PER_BAND
 from ..core.windows import distinct_directions, OnlineStaticDetector, StaticWindows
+from ..dataio.calibration_file import default_calibration_path, save_calibration
 
 METHODS = ('ml', 'gn', 'ml-bc')
 THERMAL_MODES = ('auto', 'on', 'off')
@@ -473,7 +474,7 @@ class CalibrationNode(Node):
                                    + ' (are the readings in m/s2?)')
         bands = 0 if cal.thermal is None else len(cal.thermal.usable)
         try:
-            cal.save(p['calibration_file'])
+            save_calibration(cal, p['calibration_file'])
         except OSError as err:
             raise CalibrationError(f'cannot write {p["calibration_file"]}: {err}') from None
         with np.printoptions(precision=5, suppress=True):

@@ -27,8 +27,8 @@ from sensor_msgs.msg import Imu, Temperature
 
 from .calibration import calibration_path
 from .common import declare, number, run
-from ..core.calibration import Calibration, default_calibration_path
 from ..core.errors import InputError
+from ..dataio.calibration_file import default_calibration_path, load_calibration
 
 UNCALIBRATED_STD = 0.5
 """Per-axis standard deviation reported while no calibration is loaded, m/s²."""
@@ -172,7 +172,7 @@ class CorrectionNode(Node):
                             'calibration loaded before')
             return
         try:
-            cal = Calibration.load(self.path)
+            cal = load_calibration(self.path)
             corrector = Corrector(cal)
         except (InputError, np.linalg.LinAlgError, ValueError) as err:
             log.error(f'ignoring calibration file {self.path}: {err}; '

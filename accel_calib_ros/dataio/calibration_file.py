@@ -1,0 +1,374 @@
+"""
+Calibration files: the one validating loader and the atomic writer.
+
+A calibration file is versioned, human-readable YAML with units in the key names
+(see :func:`calibration_to_dict`). :func:`load_calibration` is the only way the
+product reads one: it checks the schema, the types, that every number is finite
+and in a plausible range (a well-conditioned upper-triangular ``T``, a bias smaller
+than gravity, ordered non-overlapping temperature bands with bounded drift
+coefficients) and turns every problem - a missing file, a directory, a huge or
+non-UTF-8 file, broken or deeply nested YAML - into one
+:class:`~accel_calib_ros.core.errors.InputError` with a one-line message.
+:func:`save_calibration` refuses to write anything that the loader would refuse and
+replaces the file atomically, creating its directory. Imports yaml, numpy and the
+scipy-free ``core.model`` only.
+"""
+
+import math
+import os
+
+import numpy as np
+import yaml
+
+from ..core.errors import CalibrationError, InputError
+from ..core.model import Calibration, METHODS, PARAMETER_NAMES
+from ..core.thermal import ThermalBand, ThermalTable
+
+FORMAT = 'accel_calib_ros/calibration'
+VERSION = 1
+MAX_FILE_BYTES = 1 << 20
+"""Largest calibration file read, bytes (a real one is a few kB)."""
+MAX_BANDS = 200
+MAX_CONDITION = 10.0
+"""Largest condition number of T accepted (a real sensor is within a few per cent of 1)."""
+GRAVITY_RANGE = (0.1, 100.0)
+"""Gravity magnitudes accepted, m/s² (1.0 allows data in units of g)."""
+T_DIAGONAL_RANGE = (1e-6, 1e6)
+"""Diagonal of T accepted (readings per true unit; raw counts are about 1.7e3)."""
+MAX_GYRO_BIAS = 1.0
+"""Largest gyroscope bias accepted, rad/s."""
+TEMPERATURE_RANGE = (-100.0, 200.0)
+"""Temperatures accepted, °C."""
+
+
+def default_calibration_path():
+    """Where the nodes keep the calibration unless told otherwise."""
+    root = os.environ.get('ROS_HOME', os.path.join(os.path.expanduser('~'), '.ros'))
+    return os.path.join(root, 'accel_calib_ros', 'calibration.yaml')
+
+
+# -- writing ---------------------------------------------------------------------------
+
+def _floats(values):
+    return [float(v) for v in np.asarray(values, float).reshape(-1)]
+
+
+def _finite_or_none(value):
+    return float(value) if value is not None and math.isfinite(value) else None
+
+
+def calibration_to_dict(cal):
+    """
+    Versioned, YAML-ready mapping with units in the key names.
+
+    Unknown noise and residual (NaN) are written as null; any other non-finite value
+    is kept, so that :func:`calibration_from_dict` refuses it.
+    """
+    with np.errstate(all='ignore'):
+        return _to_dict(cal)
+
+
+def _to_dict(cal):
+    d = {
+        'format': FORMAT, 'version': VERSION, 'created': str(cal.created),
+        'source': str(cal.source),
+        'model': 'raw = T @ true + bias + drift(raw, temp); '
+        'true = inv(T) @ (raw - bias - drift(raw, temp))',
+        'method': cal.method, 'gravity_m_s2': float(cal.gravity),
+        'T': [_floats(row) for row in cal.T],
+        'bias_m_s2': _floats(cal.bias),
+        'scale': _floats(cal.scale),
+        'nonorthogonality_deg': dict(zip(('xy', 'xz', 'yz'),
+                                         _floats(cal.nonorthogonality_deg))),
+        'fit': {'observations': int(cal.observations), 'iterations': int(cal.iterations),
+                'converged': bool(cal.converged), 'seconds': float(cal.seconds),
+                'residual_rms_m_s2': _finite_or_none(cal.residual_rms),
+                'noise_std_m_s2': [_finite_or_none(v) for v in cal.noise_std]},
+    }
+    if cal.predicted_accuracy is not None:
+        d['predicted_accuracy_m_s2'] = float(cal.predicted_accuracy)
+    if cal.sensor_id is not None:
+        d['sensor_id'] = str(cal.sensor_id)
+    if cal.temperature_range_c is not None:
+        d['temperature_range_c'] = _floats(cal.temperature_range_c)
+    if cal.gyro_bias is not None:
+        d['gyro_bias_rad_s'] = _floats(cal.gyro_bias)
+    if cal.level_roll_pitch_rad is not None:
+        d['level_roll_pitch_rad'] = _floats(cal.level_roll_pitch_rad)
+    if cal.covariance is not None:
+        d['covariance'] = {
+            'order': list(PARAMETER_NAMES), 'units': 'T dimensionless, b in m/s2',
+            'matrix': [_floats(row) for row in cal.covariance]}
+    if cal.thermal is not None:
+        d['thermal'] = cal.thermal.to_dict()
+    return d
+
+
+def calibration_to_yaml(cal):
+    """YAML text of :func:`calibration_to_dict`."""
+    return yaml.safe_dump(calibration_to_dict(cal), sort_keys=False,
+                          default_flow_style=None, width=100, allow_unicode=True)
+
+
+def save_calibration(cal, path):
+    """
+    Write ``cal`` to ``path`` atomically, creating the directory.
+
+    :raises CalibrationError: the calibration holds non-finite or implausible values
+        (nothing is written; an existing file is left as it was).
+    :raises OSError: the file system refused.
+    """
+    d = calibration_to_dict(cal)
+    try:
+        calibration_from_dict(d)
+    except InputError as err:
+        raise CalibrationError(f'refusing to write the calibration: {err}') from None
+    text = yaml.safe_dump(d, sort_keys=False, default_flow_style=None, width=100,
+                          allow_unicode=True)
+    from .atomic import atomic_write_text
+    directory = os.path.dirname(os.path.abspath(os.fspath(path)))
+    os.makedirs(directory, exist_ok=True)
+    atomic_write_text(path, text)
+
+
+# -- reading ---------------------------------------------------------------------------
+
+class _Bad(Exception):
+    """Internal: a validation failure with a one-line reason."""
+
+
+def _number(value, name, low=-math.inf, high=math.inf, integer=False):
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise _Bad(f'{name} must be a number, got {type(value).__name__}')
+    if integer and not (isinstance(value, int) or float(value).is_integer()):
+        raise _Bad(f'{name} must be an integer, got {value!r}')
+    try:
+        x = float(value)
+    except OverflowError:
+        raise _Bad(f'{name} is out of range') from None
+    if not math.isfinite(x):
+        raise _Bad(f'{name} must be finite, got {value!r}')
+    if not low <= x <= high:
+        raise _Bad(f'{name} = {x:g} is outside [{low:g}, {high:g}]')
+    return int(x) if integer else x
+
+
+def _vector(value, name, size, low=-math.inf, high=math.inf):
+    if not isinstance(value, (list, tuple)) or len(value) != size:
+        raise _Bad(f'{name} must be a list of {size} numbers')
+    return np.array([_number(v, f'{name}[{k}]', low, high) for k, v in enumerate(value)])
+
+
+def _matrix(value, name, rows, cols):
+    if not isinstance(value, (list, tuple)) or len(value) != rows:
+        raise _Bad(f'{name} must be a {rows}x{cols} list of lists of numbers')
+    return np.vstack([_vector(r, f'{name}[{k}]', cols) for k, r in enumerate(value)])
+
+
+def _mapping(value, name):
+    if not isinstance(value, dict):
+        raise _Bad(f'{name} must be a mapping, got {type(value).__name__}')
+    return value
+
+
+def _string(value, name, max_len=1000):
+    if value is None:
+        return ''
+    if isinstance(value, bool) or not isinstance(value, (str, int, float)):
+        raise _Bad(f'{name} must be text')
+    text = str(value)
+    if len(text) > max_len:
+        raise _Bad(f'{name} is longer than {max_len} characters')
+    return text
+
+
+def _optional(d, key, parse):
+    value = d.get(key)
+    return None if value is None else parse(value)
+
+
+def _validate_T(T):
+    if np.any(np.tril(T, -1) != 0):
+        raise _Bad('T must be upper triangular (raw = T @ true + bias)')
+    diag = np.diag(T)
+    low, high = T_DIAGONAL_RANGE
+    if np.any(diag < low) or np.any(diag > high):
+        raise _Bad(f'the diagonal of T must lie in [{low:g}, {high:g}], got '
+                   f'{np.array2string(diag, precision=4)}')
+    cond = np.linalg.cond(T)
+    if not cond <= MAX_CONDITION:
+        raise _Bad(f'T is ill-conditioned (condition number {cond:.3g} > {MAX_CONDITION:g})')
+
+
+def _thermal(value, gravity_raw):
+    d = _mapping(value, 'thermal')
+    width = _number(d.get('band_width_c'), 'thermal.band_width_c', 1e-3, 1e3)
+    bands_in = d.get('bands', [])
+    if not isinstance(bands_in, list) or len(bands_in) > MAX_BANDS:
+        raise _Bad(f'thermal.bands must be a list of at most {MAX_BANDS} bands')
+    lo_t, hi_t = TEMPERATURE_RANGE
+    bands = []
+    for k, b in enumerate(bands_in):
+        name = f'thermal.bands[{k}]'
+        b = _mapping(b, name)
+        low = _number(b.get('low_c'), f'{name}.low_c', lo_t, hi_t)
+        high = _number(b.get('high_c'), f'{name}.high_c', lo_t, hi_t)
+        if not low < high:
+            raise _Bad(f'{name}: low_c must be below high_c')
+        temp = _number(b.get('temp_c'), f'{name}.temp_c', lo_t, hi_t)
+        quad = _vector(b.get('quadratic_per_m_s2'), f'{name}.quadratic_per_m_s2', 3,
+                       -1.0 / gravity_raw, 1.0 / gravity_raw)
+        lin = _vector(b.get('linear'), f'{name}.linear', 3, -1.0, 1.0)
+        off = _vector(b.get('offset_m_s2'), f'{name}.offset_m_s2', 3, -gravity_raw,
+                      gravity_raw)
+        windows = _number(b.get('windows', 0), f'{name}.windows', 0, 1e12, integer=True)
+        status = _string(b.get('status', 'ok'), f'{name}.status')
+        rms = _optional(b, 'residual_rms_m_s2',
+                        lambda v: _number(v, f'{name}.residual_rms_m_s2', 0.0))
+        gyro = _optional(b, 'gyro_bias_rad_s',
+                         lambda v: _vector(v, f'{name}.gyro_bias_rad_s', 3, -MAX_GYRO_BIAS,
+                                           MAX_GYRO_BIAS))
+        if status == 'ok' and not low <= temp <= high:
+            raise _Bad(f'{name}: temp_c {temp:g} lies outside its band [{low:g}, {high:g}]')
+        bands.append(ThermalBand(low, high, temp, quad, lin, off, windows, status,
+                                 float('nan') if rms is None else rms, gyro))
+    for a, b in zip(bands, bands[1:]):
+        if not a.high_c <= b.low_c + 1e-9:
+            raise _Bad('thermal bands must be ordered by temperature and must not overlap')
+    return ThermalTable(width, bands)
+
+
+def _calibration(d):
+    d = _mapping(d, 'the file')
+    if d.get('format') != FORMAT:
+        raise _Bad(f'not an accel_calib_ros calibration file (format is not {FORMAT})')
+    version = d.get('version')
+    if version != VERSION or isinstance(version, bool):
+        raise _Bad(f'calibration file version {_string(version, "version")[:20]!r} is not '
+                   f'supported (this is version {VERSION})')
+    method = _string(d.get('method'), 'method', 40)
+    if method not in METHODS:
+        raise _Bad(f'method {method!r} is not one of {", ".join(METHODS)}')
+    gravity = _number(d.get('gravity_m_s2'), 'gravity_m_s2', *GRAVITY_RANGE)
+    T = _matrix(d.get('T'), 'T', 3, 3)
+    _validate_T(T)
+    gravity_raw = gravity * float(np.max(np.diag(T)))
+    bias = _vector(d.get('bias_m_s2'), 'bias_m_s2', 3, -gravity_raw, gravity_raw)
+    fit = _mapping(d.get('fit', {}) or {}, 'fit')
+    noise = fit.get('noise_std_m_s2')
+    if noise is None:
+        noise = np.full(3, np.nan)
+    else:
+        if not isinstance(noise, list) or len(noise) != 3:
+            raise _Bad('fit.noise_std_m_s2 must be a list of 3 numbers')
+        noise = np.array([np.nan if v is None else _number(v, 'fit.noise_std_m_s2', 0.0)
+                          for v in noise])
+    converged = fit.get('converged', True)
+    if not isinstance(converged, bool):
+        raise _Bad('fit.converged must be true or false')
+    cov = None
+    if d.get('covariance') is not None:
+        cov = _matrix(_mapping(d['covariance'], 'covariance').get('matrix'),
+                      'covariance.matrix', 9, 9)
+        if np.any(np.diag(cov) < 0) or not np.allclose(cov, cov.T, rtol=1e-6,
+                                                       atol=1e-12 * np.abs(cov).max()):
+            raise _Bad('covariance.matrix must be symmetric with a non-negative diagonal')
+    lo_t, hi_t = TEMPERATURE_RANGE
+    temp_range = _optional(d, 'temperature_range_c',
+                           lambda v: _vector(v, 'temperature_range_c', 2, lo_t, hi_t))
+    if temp_range is not None and temp_range[0] > temp_range[1]:
+        raise _Bad('temperature_range_c must be [min, max]')
+    level = _optional(d, 'level_roll_pitch_rad',
+                      lambda v: _vector(v, 'level_roll_pitch_rad', 2, -math.pi, math.pi))
+    if level is not None and abs(level[1]) > math.pi / 2:
+        raise _Bad('level_roll_pitch_rad: pitch must lie in [-pi/2, pi/2]')
+    return Calibration(
+        T=T, bias=bias, gravity=gravity, method=method, covariance=cov,
+        residual_rms=float('nan') if fit.get('residual_rms_m_s2') is None else _number(
+            fit['residual_rms_m_s2'], 'fit.residual_rms_m_s2', 0.0),
+        noise_std=noise,
+        observations=_number(fit.get('observations', 0), 'fit.observations', 0, 1e15,
+                             integer=True),
+        iterations=_number(fit.get('iterations', 0), 'fit.iterations', 0, 1e9, integer=True),
+        converged=converged,
+        seconds=0.0 if fit.get('seconds') is None else _number(fit['seconds'],
+                                                               'fit.seconds', 0.0),
+        thermal=_optional(d, 'thermal', lambda v: _thermal(v, gravity_raw)),
+        created=_string(d.get('created'), 'created', 100),
+        source=_string(d.get('source'), 'source'),
+        predicted_accuracy=_optional(d, 'predicted_accuracy_m_s2', lambda v: _number(
+            v, 'predicted_accuracy_m_s2', 0.0)),
+        gyro_bias=_optional(d, 'gyro_bias_rad_s', lambda v: _vector(
+            v, 'gyro_bias_rad_s', 3, -MAX_GYRO_BIAS, MAX_GYRO_BIAS)),
+        temperature_range_c=None if temp_range is None else tuple(temp_range),
+        level_roll_pitch_rad=None if level is None else tuple(level),
+        sensor_id=_optional(d, 'sensor_id', lambda v: _string(v, 'sensor_id', 200)))
+
+
+def calibration_from_dict(d):
+    """
+    Validate a parsed calibration mapping and build the Calibration (no I/O).
+
+    :raises InputError: with a one-line reason, for anything malformed or implausible.
+    """
+    try:
+        return _calibration(d)
+    except _Bad as err:
+        raise InputError(f'calibration: {err}') from None
+    except RecursionError:
+        raise InputError('calibration: nested too deeply') from None
+    except (TypeError, ValueError, AttributeError, KeyError, OverflowError, IndexError,
+            np.linalg.LinAlgError) as err:
+        raise InputError(f'calibration is malformed: {type(err).__name__}: '
+                         f'{str(err).splitlines()[0] if str(err) else ""}') from None
+
+
+def load_calibration(path):
+    """
+    Read and validate a calibration file.
+
+    :param path: file path (``~`` is expanded).
+    :returns: Calibration.
+    :raises InputError: one-line reason for any problem; nothing else escapes.
+    """
+    try:
+        return _load(path)
+    except InputError:
+        raise
+    except MemoryError:
+        raise InputError(f'calibration file {path} is too large to read') from None
+    except Exception as err:   # noqa: B902 - the one loader must never let anything else out
+        raise InputError(f'cannot read calibration file {path}: {type(err).__name__}') \
+            from None
+
+
+def _load(path):
+    path = os.path.expanduser(os.fspath(path))
+    try:
+        if os.path.isdir(path):
+            raise InputError(f'calibration file {path} is a directory')
+        with open(path, 'rb') as f:
+            data = f.read(MAX_FILE_BYTES + 1)
+    except FileNotFoundError:
+        raise InputError(f'calibration file not found: {path}') from None
+    except OSError as err:
+        raise InputError(f'cannot read calibration file {path}: '
+                         f'{err.strerror or err}') from None
+    if len(data) > MAX_FILE_BYTES:
+        raise InputError(f'calibration file {path} is larger than {MAX_FILE_BYTES} bytes')
+    try:
+        text = data.decode('utf-8')
+    except UnicodeDecodeError as err:
+        raise InputError(f'calibration file {path} is not UTF-8 text (byte {err.start})') \
+            from None
+    try:
+        parsed = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        first = str(err).splitlines()[0] if str(err) else 'syntax error'
+        raise InputError(f'calibration file {path} is not valid YAML: {first}') from None
+    except RecursionError:
+        raise InputError(f'calibration file {path} is nested too deeply') from None
+    try:
+        return calibration_from_dict(parsed)
+    except InputError as err:
+        raise InputError(f'{path}: {err}') from None
