@@ -112,6 +112,10 @@ def build_parser():
     _add_data_args(p)
     p.add_argument('--baseline', choices=('gn', 'ml'), default='ml')
     p.add_argument('--report', help='folder for PNG plots and a Markdown summary')
+    p.add_argument('--min-effect-mg', type=_positive, default=None,
+                   help='name an effect only when its worst-case error in corrected '
+                        'acceleration exceeds this, mg (default: the predicted accuracy '
+                        'of the fit, at least 1 mg)')
     p.add_argument('--gravity', type=_positive, default=G0, help='gravity, m/s²')
     p.add_argument('--json', action='store_true', help='print one JSON object')
     _add_window_args(p)
@@ -294,7 +298,7 @@ def cmd_diagnose(args, out):
     result = diagnose(samples, baseline=args.baseline, gravity=args.gravity,
                       min_duration_s=args.min_window_s,
                       threshold_factor=args.threshold_factor,
-                      max_weight_s=args.max_weight_s)
+                      max_weight_s=args.max_weight_s, min_effect_mg=args.min_effect_mg)
     if args.report:
         from .report import write_report
         write_report(result, args.report)

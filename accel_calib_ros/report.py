@@ -6,6 +6,8 @@ Model-gap report: PNG plots a person looks at, and a short Markdown summary.
 - ``gap.png``: the gap after each step (1 = measurement and model agree);
 - ``residuals_step<k>.png``: the normalised residuals of the model before step k
   (and of the final model) against temperature, time and orientation;
+- ``probes.png``: where the final residual lives (smooth in time, temperature,
+  direction and |y|, each with its significance);
 - ``report.md``: what was found, the evidence, the plots.
 
 Every file is written atomically.
@@ -16,6 +18,7 @@ import os
 import matplotlib
 import numpy as np
 
+from .core.effects import G0
 from .dataio.atomic import atomic_path, atomic_write_text
 
 matplotlib.use('Agg')
@@ -67,6 +70,50 @@ def _residual_figure(path, fit, model_label, c, directions):
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=90)
     plt.close(fig)
+
+
+def _probe_figure(path, result):
+    """
+    Plot where the final residual lives: each nonparametric probe's smooth over its variable.
+
+    Time, temperature and |y|: the residual (m/s², dots) and the probe's fitted smooth
+    (crosses). Direction: the smooth on a longitude/latitude map of the gravity direction.
+    Each panel's title gives the probe's p-value (significant below ``PROBE_P``).
+    """
+    from .core.diagnose import Model, PROBE_P
+    probes = result.probes
+    if not probes:
+        return False
+    fit = result.fits[-1]
+    rho, _ = Model(result.baseline, fit.effects).residual_parts(fit.x, result.conditions)
+    fig, axes = plt.subplots(1, len(probes), figsize=(4 * len(probes), 3.6), squeeze=False)
+    labels = {'time': 'time - mean, s', 'temperature': 'temperature - mean, °C',
+              'magnitude': '|raw reading|'}
+    for ax, (name, probe) in zip(axes[0], probes.items()):
+        mark = 'significant' if probe['p'] < PROBE_P else 'not significant'
+        smooth_mg = 1000.0 * probe['_smooth'] / G0
+        if name == 'direction':
+            d = probe['_x']
+            lon, lat = np.degrees(np.arctan2(d[:, 1], d[:, 0])), np.degrees(np.arcsin(d[:, 2]))
+            art = ax.scatter(lon, lat, c=smooth_mg, cmap='coolwarm', s=30)
+            fig.colorbar(art, ax=ax, label='smooth, mg')
+            ax.set_xlabel('longitude of gravity, °')
+            ax.set_ylabel('latitude, °')
+        else:
+            ax.scatter(probe['_x'], 1000.0 * rho / G0, s=10, color='grey', label='residual')
+            ax.scatter(probe['_x'], smooth_mg, s=14, marker='x', color='tab:red',
+                       label='smooth')
+            ax.set_xlabel(labels.get(name, name))
+            ax.set_ylabel('|a| - g, mg')
+            ax.legend(fontsize=7)
+        ax.set_title(f'{name}: p = {probe["p"]:.1e} ({mark})', fontsize=9)
+        ax.grid(alpha=0.3)
+    fig.suptitle('Where the final residual lives (nonparametric probes)')
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90, format='png')
+    plt.close(fig)
+    return True
 
 
 def write_report(result, folder):
@@ -121,25 +168,40 @@ def write_report(result, folder):
         lines.append(f'- Note: {note}')
     for name, reason in result.skipped.items():
         lines.append(f'- Not testable with this session: {name} ({reason}).')
+    for item in result.partial:
+        lines.append(f'- Not named: {item["effect"]} (up to {item["worst_case_mg"]:.2g} mg) '
+                     f'explains only part of a dependence on {item["variable"]} of another '
+                     f'shape ({item["left_rms_mg"]:.2g} mg RMS left).')
+    if result.candidates:
+        lines += ['', f'Candidates of the last round (practical threshold '
+                  f'{result.threshold_mg:.2g} mg):', '',
+                  '| effect | F | p | worst case, mg | significant | large enough |',
+                  '|---|---|---|---|---|---|']
+        for cand in result.candidates:
+            lines.append(f'| {cand["effect"]} | {cand["F"]:.1f} | {cand["p"]:.1e} | '
+                         f'{cand["worst_case_mg"]:.2g} | {"yes" if cand["significant"] else "no"}'
+                         f' | {"yes" if cand["large_enough"] else "no"} |')
     lines.append('')
-    verdict = 'explained' if result.explained else 'NOT explained'
+    lines.append(f'Final gap {result.gap_after:.2f}; noise alone gives at most '
+                 f'{result.null_limit:.2f} (99.9 % point of F(dof, noise dof), p = '
+                 f'{result.null_p:.2g}): {result.verdict()}.')
     if result.null_gaps:
-        lines.append("Re-simulating the final model under this session's poses, "
-                     f'temperatures, times and window lengths {len(result.null_gaps)} times '
-                     f'gives gaps of {np.mean(result.null_gaps):.2f} ± '
-                     f'{np.std(result.null_gaps):.2f} (95th percentile '
-                     f'{np.percentile(result.null_gaps, 95):.2f}): the measured '
-                     f'{result.gap_after:.2f} (p = {result.null_p:.2f}) is {verdict} by '
-                     f'noise (limit {result.null_limit:.2f}).')
-    else:
-        lines.append(f'The final gap {result.gap_after:.2f} is {verdict} by noise '
-                     f'(chi² limit {result.null_limit:.2f}).')
+        lines.append(f'Re-simulated gaps: {np.mean(result.null_gaps):.2f} ± '
+                     f'{np.std(result.null_gaps):.2f} ({len(result.null_gaps)} runs).')
+    probes = _probe_figure(os.path.join(folder, 'probes.png'), result)
+    if probes:
+        lines += ['', '| probe | terms | p | RMS, mg | significant |', '|---|---|---|---|---|']
+        for name, probe in result.probes.items():
+            lines.append(f'| {name} | {probe["terms"]} | {probe["p"]:.1e} | '
+                         f'{probe["rms_mg"]:.2g} | {"yes" if probe["significant"] else "no"} |')
+        lines += ['', '![where the residual lives](probes.png)']
     noise = result.noise()
     if 'sample_std' in noise:
         lines.append('')
         lines.append('Noise measured in the windows: per-sample std '
                      + ', '.join(f'{v:.3g}' for v in noise['sample_std'])
-                     + f' (reading units), correlated-noise inflation {noise["inflation"]:.2f}'
+                     + f' (reading units), window-mean variance factor {noise["inflation"]:.3g}'
+                     + f' ({", ".join(noise.get("model", []))})'
                      + (', density ' + ', '.join(f'{v:.0f}' for v in
                                                  noise['density_ug_per_sqrt_hz'])
                         + ' µg/√Hz' if 'density_ug_per_sqrt_hz' in noise else '') + '.')

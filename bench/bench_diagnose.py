@@ -313,12 +313,12 @@ def sample_classes(trials):
 
 
 def stability(pairs, sample_pairs):
-    print(f'\n== Stability: the same session (sensor, poses, temperatures) with two noise '
-          f'seeds; same verdict (effects named and explained/not)')
-    for label, effect, scale in (('null, window level', None, 0), ('null, ramp temperature',
-                                                                      None, 0),
-                                 ('temperature_bias 0.25x', 'temperature_bias', 0.25),
-                                 ('bias_drift 0.5x', 'bias_drift', 0.5)):
+    print('\n== Stability: the same session (sensor, poses, temperatures) with two noise '
+          'seeds; same verdict (effects named and explained/not)')
+    cases = (('null, window level', None, 0), ('null, ramp temperature', None, 0),
+             ('temperature_bias 0.25x', 'temperature_bias', 0.25),
+             ('bias_drift 0.5x', 'bias_drift', 0.5))
+    for label, effect, scale in cases:
         rng = seeded(f'stable {label}')
         same = 0
         for _ in range(pairs):

@@ -238,3 +238,109 @@ def test_a_new_effect_is_one_class(monkeypatch):
     assert result.missing_effects[:1] == [new.name], result.text()
     assert 'mg/°C²' in result.steps[0]['evidence']['magnitude']
     assert result.gap_after < 1.5
+
+
+# -- round two: practical size, outside the library, vibration, 1 kHz, stable null ---------
+
+def test_detectable_but_tiny_drift_is_not_named_unless_the_threshold_is_lowered():
+    rng = np.random.default_rng(21)
+    sensor = mpu9250_like(rng)
+    span = 24 * 1200.0                                  # 24 poses, 20-minute pauses
+    sensor.bias_drift = np.array([1.0, -1.0, 1.0]) * 0.6e-3 * G0 / span
+    windows = simulate_static_windows(sensor, random_directions(24, rng), rng, 1200.0,
+                                      30000, temperature=25.0)
+    result = diagnose_windows(windows, 'ml')
+    assert result.missing_effects == [], result.text()
+    drift = [c for c in result.candidates if c['effect'] == 'bias_drift'][0]
+    assert drift['significant'] and drift['worst_case_mg'] < 1.0
+    assert result.below_threshold and result.explained
+    lowered = diagnose_windows(windows, 'ml', min_effect_mg=0.1)
+    assert lowered.missing_effects == ['bias_drift']
+    assert 0.3 < lowered.steps[0]['evidence']['worst_case_mg'] < 1.0
+
+
+def _outside(term, seed):
+    rng = np.random.default_rng(seed)
+    directions = random_directions(N_WINDOWS, rng)
+    windows = windows_of(mpu9250_like(rng), rng, hump)
+    windows = simulate_static_windows(mpu9250_like(rng), directions, rng, HOLD_S, COUNT,
+                                      temperature=hump)
+    windows.mean[:] = windows.mean + term(directions, windows.t_mid) * G0 / 1000.0
+    return diagnose_windows(windows, 'ml')
+
+
+def test_a_cause_outside_the_library_is_said_and_located():
+    def orientation(d, t):
+        return np.column_stack([d[:, 1] * d[:, 2], d[:, 0] * d[:, 2] ** 2,
+                                d[:, 0] * d[:, 1] * d[:, 2]]) * np.array([8.0, -6.0, 9.0])
+    result = _outside(orientation, 31)
+    assert result.missing_effects == [] and result.outside_library, result.text()
+    assert 'outside the effect library' in result.text()
+    assert result.probes['direction']['significant']
+    assert not result.probes['temperature']['significant']
+    summary = json.loads(json.dumps(result.summary(), allow_nan=False))
+    assert summary['outside_library'] and summary['probes']['direction']['p'] < 1e-3
+
+
+def test_a_bias_step_is_not_passed_off_as_a_linear_drift():
+    def step(d, t):
+        return np.outer(t > np.median(t), [3.0, 2.0, -2.5])
+    result = _outside(step, 32)
+    assert 'bias_drift' not in result.missing_effects, result.text()
+    assert [p['effect'] for p in result.partial] == ['bias_drift']
+    assert result.outside_library and result.probes['time']['significant']
+
+
+def _samples(rng, rate, dlpf_hz=None, vibration=0.0, effect=None, poses=24, hold_s=2.5):
+    from scipy import signal
+    sensor = mpu9250_like(rng, rate_hz=rate)
+    if effect:
+        sensor = with_datasheet_effect(sensor, effect, rng)
+    s = simulate_session(sensor, random_directions(poses, rng), rng, hold_s=hold_s,
+                         move_s=1.0, rate_hz=rate, temperature=lambda t: 25 + 12 * np.sin(t / 20))
+    accel = s.samples.accel
+    if vibration:
+        b, a = signal.butter(2, [15 / (rate / 2), 45 / (rate / 2)], 'bandpass')
+        shake = signal.lfilter(b, a, rng.standard_normal(accel.shape), axis=0)
+        accel += shake / shake.std(axis=0) * vibration
+    if dlpf_hz:
+        b, a = signal.butter(2, dlpf_hz / (rate / 2))
+        accel[:] = signal.lfilter(b, a, accel, axis=0, zi=signal.lfilter_zi(b, a)[:, None]
+                                  * accel[:1])[0]
+    return s.samples
+
+
+def test_1khz_dlpf_clean_session_is_no_false_alarm():
+    result = diagnose(_samples(np.random.default_rng(41), 1000.0, dlpf_hz=41.0), 'ml')
+    assert result.missing_effects == [] and result.statistically_explained, result.text()
+    assert result.noise_inflation > 4.0         # a DLPF correlates neighbouring samples
+    assert 0.5 < result.gap_after < 1.6
+
+
+def test_vibration_neither_hides_an_effect_nor_raises_an_alarm():
+    null = diagnose(_samples(np.random.default_rng(42), 100.0, vibration=0.5), 'ml')
+    assert null.missing_effects == [] and null.statistically_explained, null.text()
+    assert null.gap_after > 0.5 and 'vibration' in null.noise()['model']
+    found = diagnose(_samples(np.random.default_rng(43), 100.0, vibration=0.5,
+                              effect='temperature_bias'), 'ml')
+    assert found.missing_effects[:1] == ['temperature_bias'], found.text()
+
+
+def test_null_verdict_does_not_depend_on_the_random_draws():
+    rng = np.random.default_rng(51)
+    windows = windows_of(mpu9250_like(rng), rng, hump)
+    first = diagnose_windows(windows, 'ml', rng=np.random.default_rng(1), replicates=5)
+    second = diagnose_windows(windows, 'ml', rng=np.random.default_rng(2), replicates=5)
+    assert first.null_limit == second.null_limit and first.explained == second.explained
+    # A noise level measured with few degrees of freedom widens the limit.
+    from accel_calib_ros.core.diagnose import null_gap_limit
+    assert null_gap_limit(50, 30) > null_gap_limit(50, 3000) > null_gap_limit(50, np.inf)
+
+
+def test_no_temperature_column_is_said_so():
+    rng = np.random.default_rng(61)
+    windows = windows_of(mpu9250_like(rng), rng, 25.0)
+    windows.temp[:] = np.nan
+    result = diagnose_windows(windows, 'ml')
+    assert result.skipped['temperature_bias'] == 'no temperature column'
+    assert 'spans only' not in result.text()

@@ -771,29 +771,21 @@ def effect_worst_case_mg(model, x, c, name, params):
 
 def predicted_accuracy_mg(model, fit):
     """
-    Return the baseline fit's predicted accuracy, mg: RMS error of the corrected vector.
+    Return the baseline fit's predicted accuracy, mg (``core.accuracy``, spec section 5).
 
-    From the covariance (J^T J)^-1 of the baseline parameters (J: Jacobian of the
-    noise-normalised residuals), the error -T^-1 (dT a + db) of a = T^-1 (y - b),
-    averaged over directions spread evenly on the sphere at |a| = g (spec section 5).
+    The covariance (J^T J)^-1 of the baseline parameters (J: Jacobian of the
+    noise-normalised residuals) in the (T upper row-major, bias) order; a ``gn``
+    baseline's diagonal T takes the diagonal places (the rest fixed at zero).
     """
+    from .accuracy import predicted_accuracy
     jac = fit.jac[:, :model.n_base]
     cov = np.linalg.pinv(jac.T @ jac)
+    full = np.zeros((9, 9))
+    index = np.arange(9) if model.baseline == 'ml' else np.array([0, 3, 5, 6, 7, 8])
+    full[np.ix_(index, index)] = cov
     T = model.split(fit.x)[0]
-    T_inv = np.linalg.inv(T)
-    index = np.argwhere(np.triu(np.ones((3, 3))) > 0) if model.baseline == 'ml' else \
-        np.array([[i, i] for i in range(3)])
-    total = 0.0
-    dirs = fibonacci_directions(100)
-    for u in dirs:
-        a = G0 * u
-        D = np.zeros((3, model.n_base))
-        for col, (i, j) in enumerate(index):
-            D[i, col] = a[j]
-        D[:, len(index):len(index) + 3] = np.eye(3)
-        M = T_inv @ D
-        total += float(np.trace(M @ cov @ M.T))
-    return 1000.0 * float(np.sqrt(total / len(dirs))) / G0
+    value = predicted_accuracy(T, full, G0)
+    return 1000.0 * value / G0 if np.isfinite(value) else float('nan')
 
 
 PROBE_P = 1e-3
@@ -941,7 +933,7 @@ def diagnose_windows(windows, baseline='ml', gravity=9.80665, rate_hz=None, rng=
     model, fit = _fit_model(baseline, [], c, model_start(baseline, start_cal))
     accuracy = predicted_accuracy_mg(model, fit)
     threshold = (float(min_effect_mg) if min_effect_mg is not None
-                 else max(MIN_EFFECT_MG, accuracy))
+                 else max(MIN_EFFECT_MG, accuracy if np.isfinite(accuracy) else 0.0))
     has_temp = bool(np.all(np.isfinite(np.asarray(windows.temp, float))))
     context = {'temp_span': c.temp_span, 'time_span': c.time_span, 'windows': len(windows),
                'has_temp': has_temp}
@@ -1039,8 +1031,8 @@ def diagnose_windows(windows, baseline='ml', gravity=9.80665, rate_hz=None, rng=
     return result
 
 
-PARTIAL_SHARE = 0.25
-"""A named effect is withdrawn when its variable's probe still finds this share of its chi² drop."""
+PARTIAL_SHARE = 0.05
+"""A named effect is withdrawn when its variable's probe still finds this share of its Δχ²."""
 
 
 def _demote_partial(result, c):
