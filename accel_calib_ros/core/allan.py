@@ -11,7 +11,10 @@ equivalent degrees of freedom (white-noise approximation, Howe's edf for the
 overlapping estimator). From the curve, per axis:
 
 - ``noise_density`` N: the -1/2 slope, sigma(tau) = N / sqrt(tau) (units/√Hz), read
-  from the shortest cluster times (a least-squares fit of sigma² = N²/tau there);
+  from the shortest cluster times (a least-squares fit of sigma² = N²/tau there).
+  This is the IEEE/Kalibr convention: white samples at rate f have std N sqrt(f)
+  (``white_sample_std``, what a simulator draws). A datasheet density D quoted over the
+  bandwidth f/2 (std = D sqrt(f/2), as ``simulate.mpu9250_like``) is D = N sqrt(2);
 - ``bias_instability`` B: the flat bottom, B = min sigma / sqrt(2 ln 2 / pi);
 - ``random_walk`` K: the +1/2 slope, sigma(tau) = K sqrt(tau / 3), read from the
   longest cluster times (0 when the curve never rises).
@@ -64,12 +67,17 @@ class AllanResult:
             'bias_instability_tau': self.bias_instability_tau.tolist(),
             'random_walk': self.random_walk.tolist(),
             'random_walk_ci': self.random_walk_ci.tolist(),
+            'white_sample_std': self.white_sample_std().tolist(),
             'units': {'accel': {'noise_density': 'm/s²/√Hz', 'bias_instability': 'm/s²',
                                 'random_walk': 'm/s² per √s'},
                       'gyro': {'noise_density': 'rad/s/√Hz', 'bias_instability': 'rad/s',
                                'random_walk': 'rad/s per √s'}},
             'confidence': 0.95,
         }
+
+    def white_sample_std(self):
+        """Return the per-sample std of the white part at the recording's rate (simulator)."""
+        return self.noise_density * np.sqrt(self.rate_hz)
 
     def text(self):
         """Return the human summary, one line per axis."""

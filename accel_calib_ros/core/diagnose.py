@@ -217,6 +217,9 @@ NULL_TOLERANCE = 0.05
 MIN_EFFECT_MG = 1.0
 """Smallest practical threshold, mg: an effect smaller than this is never named."""
 
+NEGLIGIBLE_FACTOR = 3.0
+"""What is left is negligible when this many times its per-window scatter is below the threshold."""
+
 
 def null_gap_limit(dof, noise_dof, quantile=NULL_QUANTILE):
     """
@@ -326,15 +329,16 @@ class DiagnoseResult:
     @property
     def negligible(self):
         """Tell whether what is left beyond the noise is too small to matter (see threshold)."""
-        return 2000.0 * self.excess_scatter() / G0 < self.threshold_mg
+        return NEGLIGIBLE_FACTOR * 1000.0 * self.excess_scatter() / G0 < self.threshold_mg
 
     @property
     def explained(self):
         """
         Tell whether nothing is left to find.
 
-        True when the final gap is within the noise, or when the scatter left beyond the
-        noise is below half the practical threshold (detectable, irrelevant).
+        True when the final gap is within the noise, or when ``NEGLIGIBLE_FACTOR`` times
+        the scatter left beyond the noise is below the practical threshold (detectable,
+        irrelevant).
         """
         return self.statistically_explained or self.negligible
 
@@ -1039,18 +1043,20 @@ def _demote_partial(result, c):
     """
     Withdraw named effects that only explain part of a dependence of another shape.
 
-    When the final gap is not within the noise and the nonparametric probe in an effect's
-    own variable (``Effect.variable``: time for ``bias_drift``, temperature for the
+    When what is left is not explained (``DiagnoseResult.explained``) and the
+    nonparametric probe in a time or temperature effect's own variable (``Effect.variable``: time for ``bias_drift``, temperature for the
     temperature effects) is still significant and still explains at least
     ``PARTIAL_SHARE`` of the chi² the effect removed, the effect is a projection of
     something the library
     lacks (a step, a curve, a cycle), not the cause: it is moved to ``result.partial``
     and the model is refitted without it.
     """
-    if result.statistically_explained:
+    if result.explained:
         return
     partial = []
     for step in result.steps:
+        if EFFECTS[step['effect']].variable not in ('time', 'temperature'):
+            continue        # the direction probe also holds what the poses cannot tell apart
         probe = result.probes.get(EFFECTS[step['effect']].variable)
         worst = step['evidence']['worst_case_mg']
         share = PARTIAL_SHARE * step['evidence']['delta_chi2']
