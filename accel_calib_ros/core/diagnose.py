@@ -218,7 +218,7 @@ MIN_EFFECT_MG = 1.0
 """Smallest practical threshold, mg: an effect smaller than this is never named."""
 
 NEGLIGIBLE_FACTOR = 3.0
-"""What is left is negligible when this many times its per-window scatter is below the threshold."""
+"""The rest is negligible when this many times its per-window scatter is below the threshold."""
 
 
 def null_gap_limit(dof, noise_dof, quantile=NULL_QUANTILE):
@@ -1044,12 +1044,12 @@ def _demote_partial(result, c):
     Withdraw named effects that only explain part of a dependence of another shape.
 
     When what is left is not explained (``DiagnoseResult.explained``) and the
-    nonparametric probe in a time or temperature effect's own variable (``Effect.variable``: time for ``bias_drift``, temperature for the
+    nonparametric probe in a time or temperature effect's own variable
+    (``Effect.variable``: time for ``bias_drift``, temperature for the
     temperature effects) is still significant and still explains at least
     ``PARTIAL_SHARE`` of the chi² the effect removed, the effect is a projection of
-    something the library
-    lacks (a step, a curve, a cycle), not the cause: it is moved to ``result.partial``
-    and the model is refitted without it.
+    something the library lacks (a step, a curve, a cycle), not the cause: it is moved
+    to ``result.partial`` and the model is refitted without it.
     """
     if result.explained:
         return
