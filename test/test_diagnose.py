@@ -344,3 +344,13 @@ def test_no_temperature_column_is_said_so():
     result = diagnose_windows(windows, 'ml')
     assert result.skipped['temperature_bias'] == 'no temperature column'
     assert 'spans only' not in result.text()
+
+
+def test_six_face_session_gets_no_off_target_ambiguity_note():
+    rng = np.random.default_rng(12)
+    sensor, _ = hidden('temperature_bias', rng)
+    directions = np.tile(face_directions(), (10, 1))         # 60 windows: the hump rises and falls
+    windows = simulate_static_windows(sensor, directions, rng, HOLD_S, COUNT, temperature=hump)
+    result = diagnose_windows(windows, 'gn')        # six faces: the gn model
+    assert result.missing_effects[:1] == ['temperature_bias'], result.text()
+    assert result.ambiguities == [], result.ambiguities
