@@ -191,7 +191,8 @@ class WindowNoise:
         sample variance / n: 1 for white noise, more for correlated noise (a DLPF, AR
         noise, flicker), less for vibration that averages out within a window.
     :param relative_se: (3,) standard error of ``inflation`` over its value.
-    :param method: per axis, 'white', 'correlated', 'vibration' or 'given'.
+    :param method: per axis, 'white', 'correlated', 'averaging down', 'vibration' or
+        'given'.
     :param moving: (W,) bool, windows whose block means wander more than
         ``WANDER_FACTOR`` times the pooled level: they hold motion, not a pose.
     """
@@ -528,18 +529,20 @@ def window_noise(samples, windows, blocks=8):
     Measure the variance of each window mean from the data's own within-window spectrum.
 
     Each window (less a linear ramp if the temperature moved more than ``RAMP_TEMP_C``
-    inside it: the ramp is the model's business, not noise) is cut into ``blocks``
-    and into ``blocks / 2`` blocks of m samples. R(m) = m var(block means) / var(samples)
-    is the low-frequency noise power over the total: 1 for white noise, more for noise
-    correlated over many samples (a DLPF at 1 kHz, AR noise), less when the sample
-    scatter is vibration that averages out. R is pooled per axis as the median over
-    windows (chi²-median corrected, see ``_batch_ratios``) and compared between the two
+    inside it: the ramp is the model's business, not noise) is cut into 2 ``blocks``,
+    ``blocks`` and ``blocks / 2`` blocks of m samples. R(m) = m var(block means) /
+    var(samples) is the low-frequency noise power over the total: 1 for white noise, more
+    for noise correlated over many samples (a DLPF at 1 kHz, AR noise), less when the
+    sample scatter is vibration that averages out. R is pooled per axis as the median
+    over windows (chi²-median corrected, see ``_batch_ratios``) and compared between the
     block lengths:
 
-    - equal within twice their standard error: white at these scales, R(n/8) is used;
+    - equal within twice their standard error (and R(n/16), when the windows are long
+      enough, equal to R(n/8)): white at these scales, R(n/8) is used;
     - otherwise R approaches its limit like R_inf + C/m and is extrapolated to the
-      whole window, R(n) = 1.75 R(n/4) - 0.75 R(n/8) (at least R(n/4) / 4): larger
-      for longer blocks is correlated noise;
+      whole window, R(n) = 1.875 R(n/8) - 0.875 R(n/16) (the more precise pair), or
+      1.75 R(n/4) - 0.75 R(n/8) for short windows: larger for longer blocks is
+      correlated noise;
     - when the Hann-tapered spectrum near 0 Hz (``_low_frequency_ratio``) is well below
       that, the sample scatter is vibration above 0 Hz: the spectral value plus the
       vibration's leak into a rectangular mean, (R(n/8) - spectral) / 8, is used.
@@ -550,7 +553,7 @@ def window_noise(samples, windows, blocks=8):
     :returns: WindowNoise (white, unit inflation when no window is long enough).
     """
     half = blocks // 2
-    short, long_, spectral, tested = [], [], [], []
+    short, long_, finest, spectral, tested = [], [], [], [], []
     for w, (a, b) in enumerate(zip(windows.start, windows.stop)):
         if (b - a) // blocks < 8:
             continue
@@ -565,6 +568,8 @@ def window_noise(samples, windows, blocks=8):
             x = x - ramp * (ramp * x).sum(axis=0) / (ramp ** 2).sum()
             removed = 2
         spectral.append(_low_frequency_ratio(x))
+        finest.append(_batch_ratios(x, 2 * blocks, removed) if (b - a) // (2 * blocks) >= 8
+                      else np.full(3, np.nan))
         short.append(_batch_ratios(x, blocks, removed))
         long_.append(_batch_ratios(x, half, removed))
     inflation, rel, method = np.ones(3), np.zeros(3), ['white'] * 3
@@ -578,21 +583,28 @@ def window_noise(samples, windows, blocks=8):
     moving[np.asarray(tested)[wander > WANDER_FACTOR]] = True
     keep = ~(wander > WANDER_FACTOR)
     short, long_, spectral = short[keep], long_[keep], np.asarray(spectral)[keep]
+    finest = np.asarray(finest)[keep]
     for i in range(3):
         r8, se8 = _pooled(short[:, i])
         r4, se4 = _pooled(long_[:, i])
         if not (np.isfinite(r8) and np.isfinite(r4)) or r8 <= 0:
             continue
-        diff_se = np.hypot(se4, se8)
-        if abs(r4 - r8) <= 2.0 * diff_se:
+        r16, se16 = _pooled(finest[:, i])
+        fine = np.isfinite(r16) and abs(r8 - r16) > 2.0 * np.hypot(se8, se16)
+        if abs(r4 - r8) <= 2.0 * np.hypot(se4, se8) and not fine:
             value, se = r8, se8
-        else:
+        elif fine:
             # R(m) = R_inf + C/m: C < 0 for correlated noise (a DLPF, AR noise), C > 0 for
             # vibration without power at 0 Hz (its block means average down like 1/m).
-            # Extrapolated to the whole window; R(n) cannot fall below R(n/4) / 4.
+            # Extrapolated from n/16 and n/8 to the whole window (the precise pair).
+            value = max(1.875 * r8 - 0.875 * r16, 0.125 * r8)
+            se = np.hypot(1.875 * se8, 0.875 * se16)
+            method[i] = 'correlated' if r8 > r16 else 'averaging down'
+        else:
+            # The same from n/8 and n/4 (windows too short for 16 blocks).
             value = max(1.75 * r4 - 0.75 * r8, 0.25 * r4)
             se = np.hypot(1.75 * se4, 0.75 * se8)
-            method[i] = 'correlated'
+            method[i] = 'correlated' if r4 > r8 else 'averaging down'
         rs, ses = _pooled(spectral[:, i])
         if (np.isfinite(rs) and rs < 0.5 * min(value, r8)
                 and rs < r8 - 3.0 * np.hypot(ses, se8)):
