@@ -809,12 +809,19 @@ PROBE_P = 1e-3
 
 
 def _cosine_basis(values, degree):
-    """Return cos(k pi u), k = 1..degree, of ``values`` scaled to u in [0, 1], (N, degree)."""
+    """
+    Return a smooth basis of ``values`` scaled to u in [0, 1].
+
+    cos(k pi u), k = 1..degree (trends, steps, curves), and sin(2 pi k u),
+    k = 1..(degree + 1) // 2 (cycles), shape (N, degree + (degree + 1) // 2).
+    """
     span = np.ptp(values)
     if span <= 0 or degree < 1:
         return np.zeros((len(values), 0))
     u = (values - values.min()) / span
-    return np.column_stack([np.cos(np.pi * k * u) for k in range(1, degree + 1)])
+    cols = [np.cos(np.pi * k * u) for k in range(1, degree + 1)]
+    cols += [np.sin(2 * np.pi * k * u) for k in range(1, (degree + 1) // 2 + 1)]
+    return np.column_stack(cols)
 
 
 def _sphere_basis(directions, degree):
@@ -834,8 +841,8 @@ def residual_probes(model, fit, c):
     Show where the final residual lives, without assuming a physical effect.
 
     Four smooth, nonparametric bases are fitted to the noise-normalised residuals, each
-    after removing what the fitted model can already absorb (its Jacobian): a cosine
-    series in time and in temperature (alone and times each gravity-direction component,
+    after removing what the fitted model can already absorb (its Jacobian): a cosine and
+    sine series in time and in temperature (alone and times each gravity-direction component,
     since an offset o(t) moves |a| by n . o(t)), low-degree spherical harmonics over the
     gravity direction, and a cosine series in the magnitude of the raw reading |y|. A nested
     F-test gives each its significance. A probe that is significant while no library
@@ -852,7 +859,7 @@ def residual_probes(model, fit, c):
     q = np.linalg.qr(fit.jac)[0] if fit.jac is not None and fit.jac.shape[1] else \
         np.zeros((n, 0))
     room = max(fit.dof - 3, 0)
-    smooth_degree = int(min(6, room // 8))
+    smooth_degree = int(min(6, room // 12))
     sphere_degree = 4 if room >= 40 else 3 if room >= 25 else 2 if room >= 12 else 0
 
     def offset_and_scale(values):
