@@ -33,6 +33,7 @@ def test_white_noise_density_and_slope():
         # -1/2 slope over the whole curve: sigma(tau) sqrt(tau) stays at N.
         assert np.allclose(result.adev[i] * np.sqrt(result.tau), density, rtol=0.35)
     assert np.all(result.random_walk_ci[:, 0] == 0.0)       # no random walk resolved
+    assert not result.bias_instability_reached.any()        # white: the curve still falls
 
 
 def test_rate_random_walk_is_found():

@@ -15,7 +15,8 @@ overlapping estimator). From the curve, per axis:
   This is the IEEE/Kalibr convention: white samples at rate f have std N sqrt(f)
   (``white_sample_std``, what a simulator draws). A datasheet density D quoted over the
   bandwidth f/2 (std = D sqrt(f/2), as ``simulate.mpu9250_like``) is D = N sqrt(2);
-- ``bias_instability`` B: the flat bottom, B = min sigma / sqrt(2 ln 2 / pi);
+- ``bias_instability`` B: the flat bottom, B = min sigma / sqrt(2 ln 2 / pi) (only a
+  bound, ``bias_instability_reached`` False, when the curve still falls at the end);
 - ``random_walk`` K: the +1/2 slope, sigma(tau) = K sqrt(tau / 3), read from the
   longest cluster times (0 when the curve never rises).
 
@@ -54,6 +55,11 @@ class AllanResult:
     rate_hz: float
     duration_s: float
 
+    @property
+    def bias_instability_reached(self):
+        """Return per axis whether the curve has a bottom (False: still falling, a bound)."""
+        return self.bias_instability_tau < self.tau[-1]
+
     def summary(self):
         """Return the JSON object of spec section 8 (lists, finite numbers)."""
         return {
@@ -65,6 +71,7 @@ class AllanResult:
             'bias_instability': self.bias_instability.tolist(),
             'bias_instability_ci': self.bias_instability_ci.tolist(),
             'bias_instability_tau': self.bias_instability_tau.tolist(),
+            'bias_instability_reached': self.bias_instability_reached.tolist(),
             'random_walk': self.random_walk.tolist(),
             'random_walk_ci': self.random_walk_ci.tolist(),
             'white_sample_std': self.white_sample_std().tolist(),
@@ -87,7 +94,8 @@ class AllanResult:
             lines.append(
                 f'{axis}: noise density {self.noise_density[i]:.3g} '
                 f'[{self.noise_density_ci[i, 0]:.3g}, {self.noise_density_ci[i, 1]:.3g}] /√Hz, '
-                f'bias instability {self.bias_instability[i]:.3g} '
+                f'bias instability {"" if self.bias_instability_reached[i] else "<= "}'
+                f'{self.bias_instability[i]:.3g} '
                 f'[{self.bias_instability_ci[i, 0]:.3g}, {self.bias_instability_ci[i, 1]:.3g}] '
                 f'at {self.bias_instability_tau[i]:.3g} s, random walk '
                 f'{self.random_walk[i]:.3g} [{self.random_walk_ci[i, 0]:.3g}, '
