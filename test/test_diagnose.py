@@ -101,6 +101,14 @@ def test_end_to_end_on_samples_and_cli(tmp_path, capsys):
     for key in ('effect', 'gap_before', 'gap_after', 'evidence', 'where'):
         assert key in step
     assert (report / 'report.md').exists() and (report / 'gap.png').stat().st_size > 1000
+    assert (report / 'probes.png').stat().st_size > 1000
+    # The practical threshold is a parameter: above the effect's size nothing is named.
+    worst = step['evidence']['worst_case_mg']
+    assert main(['diagnose', str(path), '--json', '--min-effect-mg', f'{2 * worst}']) == 0
+    high = json.loads(capsys.readouterr().out)
+    assert high['missing_effects'] == [] and high['threshold_mg'] == pytest.approx(2 * worst)
+    assert 'scale_nonlinearity' in [c['effect'] for c in high['below_threshold']]
+    assert main(['diagnose', str(path), '--min-effect-mg', '-1']) == 2
 
 
 def test_summary_is_strict_json_with_parameters_noise_and_null():
