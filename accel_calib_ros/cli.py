@@ -160,9 +160,15 @@ def build_parser():
     _add_data_args(p)
     p.add_argument('--baseline', choices=('gn', 'ml'), default='ml')
     p.add_argument('--report', help='folder for PNG plots and a Markdown summary')
+    p.add_argument('--min-effect-mg', type=_ranged(1e-6, 1e4), default=None,
+                   help='name an effect only when its worst-case error in corrected '
+                        'acceleration exceeds this, mg (default: the predicted accuracy '
+                        'of the fit, at least 1 mg)')
     p.add_argument('--gravity', type=GRAVITY, default=G0, help='gravity, m/s²')
     p.add_argument('--json', action='store_true', help='print one JSON object')
     _add_window_args(p)
+
+    _add_allan_parser(sub)
 
     # Its options live in device.py, loaded only when the command runs (see main).
     sub.add_parser('simulate-device', add_help=False,
@@ -580,7 +586,7 @@ def cmd_diagnose(args, out):
     result = diagnose(samples, baseline=args.baseline, gravity=args.gravity,
                       min_duration_s=args.min_window_s,
                       threshold_factor=args.threshold_factor,
-                      max_weight_s=args.max_weight_s)
+                      max_weight_s=args.max_weight_s, min_effect_mg=args.min_effect_mg)
     if args.report:
         from .report import write_report
         write_report(result, args.report)
@@ -622,6 +628,29 @@ def _check_device_args(args):
                   what='--truth-out')
 
 
+def _add_allan_parser(sub):
+    p = sub.add_parser('allan', help='Allan deviation of a still recording (noise terms)')
+    _add_data_args(p)
+    p.add_argument('--plot', help='write the log-log Allan deviation plot to this PNG')
+    p.add_argument('--json', action='store_true', help='print one JSON object')
+
+
+def cmd_allan(args, out):
+    from .core.allan import allan
+    if args.plot:
+        _check_output(args.plot, args.data, what='--plot')
+        _check_suffix(args.plot, ('.png',), 'allan --plot')
+    result = allan(_load(args).validate())
+    if args.plot:
+        from .report import write_allan_plot
+        write_allan_plot(result, args.plot)
+    if args.json:
+        out(result.summary())
+    else:
+        print(result.text())
+    return 0
+
+
 def cmd_simulate_device(args, out):
     if args.run_device is None:
         raise UsageError(f'simulate-device is not available: {args.device_error}')
@@ -631,6 +660,7 @@ def cmd_simulate_device(args, out):
 
 COMMANDS = {'fit': cmd_fit, 'apply': cmd_apply, 'simulate': cmd_simulate, 'diagnose': cmd_diagnose}
 COMMANDS['simulate-device'] = cmd_simulate_device
+COMMANDS['allan'] = cmd_allan
 
 
 def _plain(value):

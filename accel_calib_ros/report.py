@@ -6,6 +6,8 @@ Model-gap report: PNG plots a person looks at, and a short Markdown summary.
 - ``gap.png``: the gap after each step (1 = measurement and model agree);
 - ``residuals_step<k>.png``: the normalised residuals of the model before step k
   (and of the final model) against temperature, time and orientation;
+- ``probes.png``: where the final residual lives (smooth in time, temperature,
+  direction and |y|, each with its significance);
 - ``report.md``: what was found, the evidence, the plots.
 
 Every file is written atomically.
@@ -16,6 +18,7 @@ import os
 import matplotlib
 import numpy as np
 
+from .core.effects import G0
 from .dataio.atomic import atomic_path, atomic_write_text
 
 matplotlib.use('Agg')
@@ -23,28 +26,94 @@ import matplotlib.pyplot as plt  # noqa: E402, I100
 
 
 def _residual_figure(path, fit, model_label, c, directions):
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8), sharey=True)
+    """
+    Plot one model's normalised residuals against the session's variables.
+
+    Panels: temperature (if recorded), time, the z component of the gravity direction,
+    and the variable the residuals follow most closely (``diagnose.where_variables``).
+    Colour:
+    the axis nearest vertical; filled when it points up, hollow when down.
+    """
+    from .core.diagnose import where_variables
     r = fit.residuals
+    variables = where_variables(c, directions)
+    best, best_r = 'temperature', 0.0
+    for name, values in variables.items():
+        if np.ptp(values) > 0 and np.ptp(r) > 0:
+            rv = float(np.corrcoef(r, values)[0, 1])
+            if abs(rv) > abs(best_r):
+                best, best_r = name, rv
     panels = [('temperature - mean, °C', c.temp), ('time - mean, s', c.time),
-              ('z component of gravity direction', directions[:, 2])]
+              ('z component of gravity direction', directions[:, 2]),
+              (f'{best} (strongest, r = {best_r:+.2f})', variables[best])]
+    panels = [p for p in panels if np.ptp(p[1]) > 0]     # no temperature recorded: no panel
+    fig, axes = plt.subplots(1, len(panels), figsize=(4 * len(panels), 3.8), sharey=True,
+                             squeeze=False)
+    axes = axes[0]
     nearest = np.argmax(np.abs(directions), axis=1)
+    up = directions[np.arange(len(directions)), nearest] > 0
     for ax, (label, x) in zip(axes, panels):
         for axis, colour in enumerate(('tab:red', 'tab:green', 'tab:blue')):
-            mine = nearest == axis
-            ax.scatter(x[mine], r[mine], color=colour, s=14,
-                       label=f'{"xyz"[axis]} axis nearest vertical')
+            for sign, face in ((True, colour), (False, 'none')):
+                mine = (nearest == axis) & (up == sign)
+                ax.scatter(x[mine], r[mine], facecolors=face, edgecolors=colour, s=16,
+                           label=f'{"+" if sign else "-"}{"xyz"[axis]} nearest up')
         ax.axhline(0, color='k', lw=0.8)
         for band in (-2, 2):
             ax.axhline(band, color='grey', lw=0.6, ls='--')
         ax.set_xlabel(label)
         ax.grid(alpha=0.3)
     axes[0].set_ylabel('(|a| - g) / noise')
-    axes[0].legend(fontsize=7, loc='best')
+    axes[0].legend(fontsize=7, loc='best', ncol=2)
     fig.suptitle(f'{model_label}: gap {fit.gap:.2f}')
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=90)
     plt.close(fig)
+
+
+def _probe_figure(path, result):
+    """
+    Plot where the final residual lives: each nonparametric probe's smooth over its variable.
+
+    Time, temperature and |y|: the residual (m/s², dots) and the probe's fitted smooth
+    (crosses). Direction: the smooth on a longitude/latitude map of the gravity direction.
+    Each panel's title gives the probe's p-value (significant below ``PROBE_P``).
+    """
+    from .core.diagnose import Model, PROBE_P
+    probes = result.probes
+    if not probes:
+        return False
+    fit = result.fits[-1]
+    rho, _ = Model(result.baseline, fit.effects).residual_parts(fit.x, result.conditions)
+    fig, axes = plt.subplots(1, len(probes), figsize=(4 * len(probes), 3.6), squeeze=False)
+    labels = {'time': 'time - mean, s', 'temperature': 'temperature - mean, °C',
+              'magnitude': '|raw reading|'}
+    for ax, (name, probe) in zip(axes[0], probes.items()):
+        mark = 'significant' if probe['p'] < PROBE_P else 'not significant'
+        smooth_mg = 1000.0 * probe['_smooth'] / G0
+        if name == 'direction':
+            d = probe['_x']
+            lon, lat = np.degrees(np.arctan2(d[:, 1], d[:, 0])), np.degrees(np.arcsin(d[:, 2]))
+            art = ax.scatter(lon, lat, c=smooth_mg, cmap='coolwarm', s=30)
+            fig.colorbar(art, ax=ax, label='smooth, mg')
+            ax.set_xlabel('longitude of gravity, °')
+            ax.set_ylabel('latitude, °')
+        else:
+            ax.scatter(probe['_x'], 1000.0 * rho / G0, s=10, color='grey', label='residual')
+            ax.scatter(probe['_x'], smooth_mg, s=14, marker='x', color='tab:red',
+                       label='smooth')
+            ax.set_xlabel(labels.get(name, name))
+            ax.set_ylabel('|a| - g, mg')
+            ax.legend(fontsize=7)
+        ax.set_title(f'{name}: p = {probe["p"]:.1e} ({mark})', fontsize=9)
+        ax.grid(alpha=0.3)
+    fig.suptitle('Where the final residual lives (nonparametric probes)')
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90, format='png')
+    plt.close(fig)
+    return True
 
 
 def write_report(result, folder):
@@ -99,15 +168,70 @@ def write_report(result, folder):
         lines.append(f'- Note: {note}')
     for name, reason in result.skipped.items():
         lines.append(f'- Not testable with this session: {name} ({reason}).')
+    for item in result.partial:
+        lines.append(f'- Not named: {item["effect"]} (up to {item["worst_case_mg"]:.2g} mg) '
+                     f'explains only part of a dependence on {item["variable"]} of another '
+                     f'shape ({item["left_rms_mg"]:.2g} mg RMS left).')
+    if result.candidates:
+        lines += ['', f'Candidates of the last round (practical threshold '
+                  f'{result.threshold_mg:.2g} mg):', '',
+                  '| effect | F | p | worst case, mg | significant | large enough |',
+                  '|---|---|---|---|---|---|']
+        for cand in result.candidates:
+            lines.append(f'| {cand["effect"]} | {cand["F"]:.1f} | {cand["p"]:.1e} | '
+                         f'{cand["worst_case_mg"]:.2g} | {"yes" if cand["significant"] else "no"}'
+                         f' | {"yes" if cand["large_enough"] else "no"} |')
+    lines.append('')
+    lines.append(f'Final gap {result.gap_after:.2f}; noise alone gives at most '
+                 f'{result.null_limit:.2f} (99.9 % point of F(dof, noise dof), p = '
+                 f'{result.null_p:.2g}): {result.verdict()}.')
     if result.null_gaps:
+        lines.append(f'Re-simulated gaps: {np.mean(result.null_gaps):.2f} ± '
+                     f'{np.std(result.null_gaps):.2f} ({len(result.null_gaps)} runs).')
+    probes = _probe_figure(os.path.join(folder, 'probes.png'), result)
+    if probes:
+        lines += ['', '| probe | terms | p | RMS, mg | significant |', '|---|---|---|---|---|']
+        for name, probe in result.probes.items():
+            lines.append(f'| {name} | {probe["terms"]} | {probe["p"]:.1e} | '
+                         f'{probe["rms_mg"]:.2g} | {"yes" if probe["significant"] else "no"} |')
+        lines += ['', '![where the residual lives](probes.png)']
+    noise = result.noise()
+    if 'sample_std' in noise:
         lines.append('')
-        lines.append("Re-simulating the final model under this session's poses, "
-                     f'temperatures and window lengths {len(result.null_gaps)} times gives '
-                     f'gaps of {np.mean(result.null_gaps):.2f} ± {np.std(result.null_gaps):.2f}: '
-                     f'the measured {result.gap_after:.2f} is '
-                     f'{"explained" if result.explained else "NOT explained"} by noise.')
+        lines.append('Noise measured in the windows: per-sample std '
+                     + ', '.join(f'{v:.3g}' for v in noise['sample_std'])
+                     + f' (reading units), window-mean variance factor {noise["inflation"]:.3g}'
+                     + f' ({", ".join(noise.get("model", []))})'
+                     + (', density ' + ', '.join(f'{v:.0f}' for v in
+                                                 noise['density_ug_per_sqrt_hz'])
+                        + ' µg/√Hz' if 'density_ug_per_sqrt_hz' in noise else '') + '.')
     lines += ['', '![gap per step](gap.png)', '']
     for label, name in images:
         lines += [f'### Residuals: {label}', '', f'![{label}]({name})', '']
     atomic_write_text(os.path.join(folder, 'report.md'), '\n'.join(lines))
     return os.path.join(folder, 'report.md')
+
+
+def write_allan_plot(result, path):
+    """Write a log-log plot of the Allan deviation per axis with its 95 % band (PNG)."""
+    groups = [[i for i, a in enumerate(result.axes) if a.startswith('a')],
+              [i for i, a in enumerate(result.axes) if a.startswith('g')]]
+    groups = [g for g in groups if g]
+    fig, axes = plt.subplots(1, len(groups), figsize=(6 * len(groups), 4.2), squeeze=False)
+    for ax, group in zip(axes[0], groups):
+        for i in group:
+            line, = ax.loglog(result.tau, result.adev[i], label=result.axes[i])
+            ax.fill_between(result.tau, result.adev_ci[i, :, 0], result.adev_ci[i, :, 1],
+                            color=line.get_color(), alpha=0.2)
+            ax.loglog(result.tau, result.noise_density[i] / np.sqrt(result.tau), ':',
+                      color=line.get_color(), lw=0.8)
+        unit = 'm/s²' if result.axes[group[0]].startswith('a') else 'rad/s'
+        ax.set_xlabel('cluster time τ, s')
+        ax.set_ylabel(f'Allan deviation, {unit}')
+        ax.grid(True, which='both', alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle('Allan deviation (dotted: white noise N/√τ; band: 95 %)')
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90, format='png')
+    plt.close(fig)

@@ -5,23 +5,29 @@ Benchmark of the model-gap workflow: detection rate, false alarms, real recordin
 Detection: for each effect of the library, random MPU-9250-like sessions (random
 poses, 60 windows of 3.5 s, a temperature that rises 10 -> 45 °C and falls again,
 flat for bias_drift) with that one effect hidden at 0.1x, 0.25x, 0.5x and 1x its
-datasheet size; a detection is the hidden effect named first. False alarms: null
-sessions, flat and varying temperature, in which anything named is false.
-Real recordings: what the workflow finds, and the held-out residual with and without
-it. Prints figures, asserts nothing.
+datasheet size; a detection is the hidden effect named first. A plain 10 -> 45 °C
+ramp is also run for the temperature effects, where temperature and time move
+together: there the result must name the effect *and* say that bias_drift is a rival.
+Over-naming: how often a second effect is named besides the hidden one; pairs: two
+effects hidden at once.
+False alarms: null sessions (window level, flat and varying temperature, ml and gn;
+sample level through window detection, with white and with correlated noise), in
+which anything named is false. Real recordings: what the workflow finds, the held-out
+residual with and without it. Prints figures, asserts nothing.
 """
 
 import argparse
 import os
 import sys
+import time
 import zlib
 
-from accel_calib_ros.core.calibration import calibrate, gravity_residuals
-from accel_calib_ros.core.diagnose import diagnose
-from accel_calib_ros.core.diagnose import diagnose_windows
+from accel_calib_ros.core.diagnose import diagnose, diagnose_windows, held_out_check
 from accel_calib_ros.core.effects import EFFECTS
+from accel_calib_ros.core.errors import CalibrationError
 from accel_calib_ros.core.simulate import (
-    mpu9250_like, random_directions, simulate_static_windows, with_datasheet_effect)
+    G0, mpu9250_like, random_directions, simulate_session, simulate_static_windows,
+    with_datasheet_effect)
 from accel_calib_ros.core.windows import detect_static_windows
 import numpy as np
 
@@ -35,13 +41,20 @@ def hump(t):
     return 10.0 + 35.0 * np.sin(np.pi * t / (WINDOWS * HOLD_S))
 
 
+def ramp(t):
+    return 10.0 + 35.0 * t / (WINDOWS * HOLD_S)
+
+
+def seeded(text):
+    """Return a Generator seeded from ``text`` (crc32: stable across processes)."""
+    return np.random.default_rng(zlib.crc32(text.encode()))
+
+
 def session(rng, effect=None, scale=1.0, temperature=hump):
     sensor = mpu9250_like(rng)
     baseline = 'gn' if effect == 'nonorthogonality' else 'ml'
     if effect:
         sensor = with_datasheet_effect(sensor, effect, rng, scale)
-    elif baseline == 'gn':
-        sensor.T = np.diag(np.diag(sensor.T))
     if effect == 'bias_drift':
         temperature = 25.0
     windows = simulate_static_windows(sensor, random_directions(WINDOWS, rng), rng, HOLD_S,
@@ -52,75 +65,370 @@ def session(rng, effect=None, scale=1.0, temperature=hump):
 def detection(trials):
     scales = (0.1, 0.25, 0.5, 1.0)
     print(f'\n== Detection rate (hidden effect named first), {trials} sessions per cell, '
-          f'{WINDOWS} windows')
-    print(f'{"effect":22s}' + ''.join(f'{s:>8g}x' for s in scales))
+          f'{WINDOWS} windows of {HOLD_S} s, hump temperature 10-45-10 °C (flat for '
+          'bias_drift)')
+    print(f'{"effect":22s}' + ''.join(f'{s:>8g}x' for s in scales)
+          + '   gap_after at 1x (median)')
     for name in EFFECTS:
-        row = []
+        row, gaps = [], []
         for scale in scales:
-            rng = np.random.default_rng(zlib.crc32(f'{name} {scale}'.encode()))
+            rng = seeded(f'{name} {scale}')
             hits = 0
             for _ in range(trials):
                 windows, baseline = session(rng, name, scale)
                 found = diagnose_windows(windows, baseline, rng=rng, replicates=0)
                 hits += found.missing_effects[:1] == [name]
+                if scale == 1.0:
+                    gaps.append(found.gap_after)
             row.append(hits / trials)
-        print(f'{name:22s}' + ''.join(f'{r:9.0%}' for r in row))
+        print(f'{name:22s}' + ''.join(f'{r:9.0%}' for r in row)
+              + f'   {np.median(gaps):.2f}')
+
+
+def extras_and_pairs(trials):
+    print(f'\n== Over-naming and two hidden effects at 1x ({trials} sessions each)')
+    for name in EFFECTS:
+        rng = seeded(f'extra {name}')
+        extra = 0
+        for _ in range(trials):
+            windows, baseline = session(rng, name, 1.0)
+            found = diagnose_windows(windows, baseline, rng=rng, replicates=0)
+            extra += len(found.missing_effects) > 1
+        print(f'  {name:20s} alone: something else named too in {extra / trials:5.1%}')
+    pairs = (('temperature_bias', 'scale_nonlinearity'), ('temperature_scale', 'temperature_bias'),
+             ('bias_drift', 'scale_nonlinearity'), ('temperature_bias', 'bias_drift'))
+    for first, second in pairs:
+        rng = seeded(f'pair {first} {second}')
+        both = 0
+        for _ in range(trials):
+            sensor = with_datasheet_effect(mpu9250_like(rng), first, rng)
+            sensor = with_datasheet_effect(sensor, second, rng)
+            windows = simulate_static_windows(sensor, random_directions(WINDOWS, rng), rng,
+                                              HOLD_S, temperature=hump)
+            found = diagnose_windows(windows, 'ml', rng=rng, replicates=0)
+            both += set(found.missing_effects) == {first, second}
+        print(f'  {first} + {second} (hump temperature): exactly both named in '
+              f'{both / trials:5.0%}')
+
+
+def ramp_ambiguity(trials):
+    print(f'\n== Plain ramp 10 -> 45 °C (temperature and time together), 1x, {trials} each')
+    for name in ('temperature_bias', 'temperature_scale'):
+        rng = seeded(f'ramp {name}')
+        named = flagged = 0
+        for _ in range(trials):
+            windows, baseline = session(rng, name, 1.0, ramp)
+            found = diagnose_windows(windows, baseline, rng=rng, replicates=0)
+            named += found.missing_effects[:1] == [name]
+            flagged += any('bias_drift' in note for note in found.ambiguities)
+        print(f'  {name:20s} named first {named / trials:5.0%}, '
+              f'bias_drift flagged as rival {flagged / trials:5.0%}')
 
 
 def false_alarms(trials):
-    print(f'\n== False alarms on null sessions ({trials} each; target <= 5 %)')
+    print(f'\n== False alarms on null sessions, window level ({trials} each; target <= 5 %)')
     for label, temperature, baseline in (('flat temperature, ml', 25.0, 'ml'),
                                          ('varying temperature, ml', hump, 'ml'),
+                                         ('ramp temperature, ml', ramp, 'ml'),
                                          ('varying temperature, gn', hump, 'gn')):
-        rng = np.random.default_rng(len(label))
-        named = 0
+        rng = seeded(label)
+        named, unexplained = 0, 0
         for _ in range(trials):
             sensor = mpu9250_like(rng)
             if baseline == 'gn':
                 sensor.T = np.diag(np.diag(sensor.T))
             windows = simulate_static_windows(sensor, random_directions(WINDOWS, rng), rng,
                                               HOLD_S, temperature=temperature)
-            named += bool(diagnose_windows(windows, baseline, rng=rng,
-                                           replicates=0).missing_effects)
-        print(f'  {label:26s} {named / trials:6.1%} named something')
+            found = diagnose_windows(windows, baseline, rng=rng, replicates=0)
+            named += bool(found.missing_effects)
+            unexplained += not found.explained
+        print(f'  {label:26s} {named / trials:6.1%} named something, '
+              f'{unexplained / trials:6.1%} called "not explained by noise"')
+
+
+def false_alarms_samples(trials):
+    print(f'\n== False alarms, sample level (window detection, measured noise, 20 re-'
+          f'simulations; {trials} each)')
+    for label, corr in (('white noise, varying temperature', 0.0),
+                        ('AR(1) noise 0.1 s, varying temperature', 0.9)):
+        rng = seeded(label)
+        named, unexplained, inflation = 0, 0, []
+        for _ in range(trials):
+            sensor = mpu9250_like(rng)
+            std = sensor.noise_std.copy()
+            if corr:
+                sensor.noise_std = np.zeros(3)
+            s = simulate_session(sensor, random_directions(40, rng), rng, hold_s=3.0,
+                                 move_s=1.0, temperature=lambda t: 10 + 35 * np.sin(t / 50))
+            if corr:
+                noise = np.zeros_like(s.samples.accel)
+                drive = rng.standard_normal(noise.shape) * std * np.sqrt(1 - corr ** 2)
+                for k in range(1, len(noise)):
+                    noise[k] = corr * noise[k - 1] + drive[k]
+                s.samples.accel[:] = s.samples.accel + noise
+            found = diagnose(s.samples, 'ml', rng=rng)
+            named += bool(found.missing_effects)
+            unexplained += not found.explained
+            inflation.append(found.noise_inflation)
+        print(f'  {label:40s} {named / trials:6.1%} named something, '
+              f'{unexplained / trials:6.1%} not explained; inflation median '
+              f'{np.median(inflation):.2f}')
+
+
+# -- round two: practical size, outside the library, vibration, 1 kHz DLPF, stability ----
+
+def outside_terms():
+    """Return disagreements the library lacks: name -> f(directions, temp, time) (N, 3) m/s²."""
+    mg = G0 / 1000.0
+
+    def temp_squared(d, temp, t):
+        u = (temp - temp.mean()) / max(np.ptp(temp) / 2, 1e-9)
+        return np.outer(u ** 2, [3.0, -2.0, 2.5]) * mg
+
+    def bias_step(d, temp, t):
+        return np.outer(t > np.median(t), [3.0, 2.0, -2.5]) * mg
+
+    def cubic_direction(d, temp, t):
+        return np.column_stack([d[:, 1] * d[:, 2], d[:, 0] * d[:, 2] ** 2,
+                                d[:, 0] * d[:, 1] * d[:, 2]]) * np.array([8.0, -6.0, 9.0]) * mg
+
+    def periodic_time(d, temp, t):
+        return np.outer(np.sin(2 * np.pi * t / (np.ptp(t) / 3)), [3.0, 2.0, 2.5]) * mg
+
+    return {'bias ∝ temperature²': (temp_squared, 'temperature'),
+            'bias step (mount shift)': (bias_step, 'time'),
+            'orientation term beyond T': (cubic_direction, 'direction'),
+            'periodic bias in time': (periodic_time, 'time')}
+
+
+def outside_library(trials):
+    print(f'\n== Residuals from effects outside the library (window level, {trials} each; '
+          'hump temperature; a few mg)')
+    print(f'  {"class":28s} {"NOT explained":>14s} {"says outside":>13s} '
+          f'{"right probe":>12s} {"named a library effect":>23s}')
+    for label, (term, probe) in outside_terms().items():
+        rng = seeded(f'outside {label}')
+        unexplained = outside = right = named = 0
+        for _ in range(trials):
+            sensor = mpu9250_like(rng)
+            directions = random_directions(WINDOWS, rng)
+            windows = simulate_static_windows(sensor, directions, rng, HOLD_S, temperature=hump)
+            windows.mean[:] = windows.mean + term(directions, windows.temp, windows.t_mid)
+            found = diagnose_windows(windows, 'ml', rng=rng)
+            unexplained += not found.explained
+            outside += found.outside_library
+            right += bool(found.probes.get(probe, {}).get('significant'))
+            named += bool(found.missing_effects)
+        print(f'  {label:28s} {unexplained / trials:14.0%} {outside / trials:13.0%} '
+              f'{right / trials:12.0%} {named / trials:23.0%}')
+
+
+def long_pauses(trials):
+    print(f'\n== Long pauses: 24 poses 20 min apart (8 h), windows of 5 min at 100 Hz, a '
+          f'bias drift of 0.6 mg over the session ({trials} sessions)')
+    named = unexplained = 0
+    worst = []
+    for _ in range(trials):
+        rng = seeded(f'pauses {_}')
+        sensor = mpu9250_like(rng)
+        span = 24 * 20 * 60.0
+        sensor.bias_drift = rng.choice([-1.0, 1.0], 3) * 0.6e-3 * G0 / span
+        windows = simulate_static_windows(sensor, random_directions(24, rng), rng,
+                                          hold_s=20 * 60.0, count=30000, temperature=25.0)
+        found = diagnose_windows(windows, 'ml', rng=rng)
+        named += bool(found.missing_effects)
+        unexplained += not found.explained
+        worst += [c['worst_case_mg'] for c in found.candidates if c['effect'] == 'bias_drift']
+    print(f'  named something {named / trials:.0%}, NOT explained {unexplained / trials:.0%}; '
+          f'bias_drift worst case {np.median(worst):.2f} mg (median; threshold 1 mg)')
+
+
+def sample_session(rng, rate=100.0, effect=None, vibration=0.0, dlpf_hz=None, poses=30,
+                   hold_s=3.0, temperature=None, noise_rng=None):
+    """
+    Simulate samples; optional band-limited vibration (RMS m/s²) and a 2-pole DLPF.
+
+    With ``noise_rng`` the sensor noise (and vibration) comes from it, everything else
+    from ``rng``: the same session with another noise draw.
+    """
+    from scipy import signal
+    sensor = mpu9250_like(rng, rate_hz=rate)
+    baseline = 'ml'
+    if effect:
+        sensor = with_datasheet_effect(sensor, effect, rng)
+        baseline = 'gn' if effect == 'nonorthogonality' else 'ml'
+    if temperature is None:
+        temperature = 25.0 if effect == 'bias_drift' else (lambda t: 25 + 12 * np.sin(t / 30))
+    std = sensor.noise_std.copy()
+    if noise_rng is not None:
+        sensor.noise_std = np.zeros(3)
+    s = simulate_session(sensor, random_directions(poses, rng), rng, hold_s=hold_s,
+                         move_s=1.0, rate_hz=rate, temperature=temperature)
+    accel = s.samples.accel
+    if noise_rng is not None:
+        accel += noise_rng.standard_normal(accel.shape) * std
+        rng = noise_rng
+    if vibration:
+        high = min(0.45 * rate, 120.0)
+        b, a = signal.butter(2, [15.0 / (rate / 2), high / (rate / 2)], 'bandpass')
+        shake = signal.lfilter(b, a, rng.standard_normal(accel.shape), axis=0)
+        accel += shake / shake.std(axis=0) * vibration
+    if dlpf_hz:
+        b, a = signal.butter(2, dlpf_hz / (rate / 2))
+        zi = signal.lfilter_zi(b, a)[:, None] * accel[:1]
+        accel[:] = signal.lfilter(b, a, accel, axis=0, zi=zi)[0]
+    return s.samples, baseline
+
+
+def sample_classes(trials):
+    print(f'\n== Sample level: vibration and 1 kHz DLPF ({trials} sessions each; 30 poses of '
+          '3 s; detection = the hidden effect named first at 1x datasheet size)')
+    cases = [('clean 100 Hz', {}), ('clean 1 kHz, no DLPF', {'rate': 1000.0}),
+             ('1 kHz, DLPF 184 Hz', {'rate': 1000.0, 'dlpf_hz': 184.0}),
+             ('1 kHz, DLPF 41 Hz', {'rate': 1000.0, 'dlpf_hz': 41.0}),
+             ('1 kHz, DLPF 10 Hz', {'rate': 1000.0, 'dlpf_hz': 10.0}),
+             ('vibration 0.3 m/s² RMS, 100 Hz', {'vibration': 0.3}),
+             ('vibration 1 m/s² RMS, 1 kHz', {'rate': 1000.0, 'vibration': 1.0})]
+    print(f'  {"class":34s} {"false alarm":>11s} {"NOT expl.":>9s} {"gap (median)":>12s}'
+          f' {"detect temperature_bias":>23s} {"detect scale_nonlin.":>20s}')
+    for label, kw in cases:
+        rng = seeded(f'samples {label}')
+        alarms = unexplained = 0
+        gaps = []
+        for _ in range(trials):
+            samples, _b = sample_session(rng, **kw)
+            found = diagnose(samples, 'ml', rng=rng)
+            alarms += bool(found.missing_effects)
+            unexplained += not found.explained
+            gaps.append(found.gap_after)
+        hits = []
+        for effect in ('temperature_bias', 'scale_nonlinearity'):
+            n = 0
+            for _ in range(trials):
+                samples, baseline = sample_session(rng, effect=effect, **kw)
+                n += diagnose(samples, baseline, rng=rng).missing_effects[:1] == [effect]
+            hits.append(n / trials)
+        print(f'  {label:34s} {alarms / trials:11.0%} {unexplained / trials:9.0%} '
+              f'{np.median(gaps):12.2f} {hits[0]:23.0%} {hits[1]:20.0%}')
+
+
+def stability(pairs, sample_pairs):
+    print('\n== Stability: the same session (sensor, poses, temperatures) with two noise '
+          'seeds; same verdict (effects named and explained/not)')
+    cases = (('null, window level', None, 0), ('null, ramp temperature', None, 0),
+             ('temperature_bias 0.25x', 'temperature_bias', 0.25),
+             ('bias_drift 0.5x', 'bias_drift', 0.5))
+    for label, effect, scale in cases:
+        rng = seeded(f'stable {label}')
+        same = 0
+        for _ in range(pairs):
+            sensor = mpu9250_like(rng)
+            if effect:
+                sensor = with_datasheet_effect(sensor, effect, rng, scale)
+            directions = random_directions(WINDOWS, rng)
+            temperature = ramp if 'ramp' in label else (25.0 if effect == 'bias_drift' else hump)
+            verdicts = []
+            for seed in (1, 2):
+                noise_rng = np.random.default_rng(seed + 7 * _)
+                windows = simulate_static_windows(sensor, directions, noise_rng, HOLD_S,
+                                                  temperature=temperature)
+                found = diagnose_windows(windows, 'ml', rng=noise_rng)
+                verdicts.append((tuple(found.missing_effects), found.explained))
+            same += verdicts[0] == verdicts[1]
+        print(f'  {label:28s} {same}/{pairs} pairs agree ({same / pairs:.1%})')
+    rng = seeded('stable samples')
+    same = 0
+    for k in range(sample_pairs):
+        seed = int(rng.integers(1 << 30))
+        verdicts = []
+        for noise_seed in (1, 2):
+            samples, _b = sample_session(np.random.default_rng(seed), rate=1000.0,
+                                         dlpf_hz=41.0, poses=24,
+                                         noise_rng=np.random.default_rng(noise_seed + 100 * k))
+            found = diagnose(samples, 'ml')
+            verdicts.append((tuple(found.missing_effects), found.explained))
+        same += verdicts[0] == verdicts[1]
+    print(f'  {"null, 1 kHz DLPF 41 Hz samples":28s} {same}/{sample_pairs} pairs agree')
+
+
+def speed():
+    rng = seeded('speed')
+    sensor = mpu9250_like(rng)
+    windows = simulate_static_windows(sensor, random_directions(100, rng), rng, HOLD_S,
+                                      temperature=hump)
+    for replicates in (0, 20):
+        times = []
+        for _ in range(5):
+            start = time.perf_counter()
+            diagnose_windows(windows, 'ml', replicates=replicates)
+            times.append(time.perf_counter() - start)
+        print(f'  100 windows, {replicates:2d} re-simulations: {1000 * np.median(times):.0f} ms')
 
 
 def real():
     print('\n== Real recordings')
     cases = []
     if peer_data.available('imu_tk'):
-        cases.append(('imu_tk Xsens', peer_data.imu_tk(), peer_data.IMU_TK_GRAVITY))
+        cases.append(('imu_tk Xsens (raw counts, g = 9.81744)', peer_data.imu_tk(),
+                      peer_data.IMU_TK_GRAVITY))
     if peer_data.available('mpu6050_tomisuarez2'):
         cases.append(('MPU-6050', peer_data.mpu6050(), 9.80665))
     if peer_data.available('imucal'):
         cases.append(('imucal Ferraris', peer_data.imucal_ferraris()[0], 9.80665))
     for name, samples, g in cases:
+        windows = detect_static_windows(samples)
         for baseline in ('gn', 'ml'):
             print(f'\n{name}, baseline {baseline}:')
             try:
                 result = diagnose(samples, baseline, g)
-            except Exception as err:  # noqa: B902 - report and go on
+            except CalibrationError as err:
                 print(f'  not diagnosable: {err}')
                 continue
             print('  ' + result.text().replace('\n', '\n  '))
-            if result.missing_effects == ['nonorthogonality']:
-                w = detect_static_windows(samples)
-                even = np.arange(len(w)) % 2 == 0
-                weights = w.weights(5.0, samples.rate_hz)
-                for method in ('gn', 'ml'):
-                    cal = calibrate(w.mean[even], g, method, weights[even])
-                    res = gravity_residuals(cal, None, w.mean[~even], g)
-                    print(f'  held-out residual (fit on half the windows) with {method}: '
-                          f'{np.sqrt(np.mean(res ** 2)):.5f} m/s²')
+            noise = result.noise()
+            print(f'  noise inflation {noise["inflation"]:.2f}, density '
+                  + ', '.join(f'{v:.0f}' for v in noise['density_ug_per_sqrt_hz'])
+                  + ' µg/√Hz')
+            if result.missing_effects:
+                try:
+                    check = held_out_check(windows, result)
+                except CalibrationError as err:
+                    print(f'  held-out check not possible: {err}')
+                    continue
+                print(f'  held-out |a| - g RMS (fit on {check["fit_windows"]} alternate '
+                      f'windows, tested on {check["test_windows"]}): {baseline} '
+                      f'{check["baseline_rms"]:.5f} m/s², {baseline} + '
+                      f'{" + ".join(check["effects"])} {check["with_effects_rms"]:.5f} m/s²')
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     parser.add_argument('--trials', type=int, default=100)
+    parser.add_argument('--quick', action='store_true',
+                        help='few trials per cell (about a minute): a smoke run, noisy rates')
+    parser.add_argument('--only', help='comma-separated sections: detection, extras, ramp, '
+                        'nulls, samples, outside, pauses, classes, stability, speed, real')
     args = parser.parse_args()
-    detection(max(args.trials // 2, 10))
-    false_alarms(args.trials)
-    real()
+    trials = 10 if args.quick else args.trials
+    sections = {
+        'detection': lambda: detection(max(trials // 2, 5)),
+        'extras': lambda: extras_and_pairs(max(trials // 5, 5)),
+        'ramp': lambda: ramp_ambiguity(max(trials // 5, 5)),
+        'nulls': lambda: false_alarms(trials),
+        'samples': lambda: false_alarms_samples(max(trials // 5, 3)),
+        'outside': lambda: outside_library(max(trials // 5, 5)),
+        'pauses': lambda: long_pauses(max(trials // 5, 5)),
+        'classes': lambda: sample_classes(max(trials // 10, 3)),
+        'stability': lambda: stability(2 * trials if not args.quick else 20,
+                                       max(trials // 5, 3)),
+        'speed': speed, 'real': real}
+    chosen = args.only.split(',') if args.only else list(sections)
+    for name in chosen:
+        if name not in sections:
+            parser.error(f'unknown section {name!r}')
+        if name == 'speed':
+            print('\n== Speed (calibration node budget: < 1 s)')
+        sections[name]()
 
 
 if __name__ == '__main__':

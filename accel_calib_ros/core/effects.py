@@ -6,7 +6,25 @@ physically, its parameters with units, when a session can see it, and its
 design-matrix columns: the change of the raw reading per unit parameter, evaluated
 at the true acceleration, the temperature and the time. The same columns drive the
 fit (``diagnose``) and the simulation (``Effect.apply``), so both always agree.
-Adding an effect is adding one subclass to ``EFFECTS``.
+Adding an effect is adding one subclass to ``EFFECTS``, for example an offset that
+moves with the square of the temperature::
+
+    class TemperatureBias2(PerAxisEffect):
+        name = 'temperature_bias_quadratic'
+        description = 'the zero-g offset bends with temperature'
+        param_names = ('c2_x', 'c2_y', 'c2_z')
+        unit = 'm/s² per °C²'
+        label = 'offset curvature'
+        applicable = TemperatureBias.applicable
+
+        def columns(self, accel, temp, time, gravity=G0):
+            return _per_axis(np.repeat(temp[:, None] ** 2, 3, axis=1))
+
+        def axis_text(self, value, gravity):
+            return f'{1000 * value / gravity:+.4f} mg/°C²'
+
+The search, the F-test, the ambiguity and visibility checks, the null simulation,
+the report and the JSON then pick it up.
 """
 
 import numpy as np
@@ -28,6 +46,8 @@ class Effect:
     description = ''
     param_names = ()
     unit = ''
+    variable = 'direction'
+    """The session variable the effect's residual follows (a ``diagnose`` probe name)."""
 
     def applicable(self, context, baseline):
         """Return '' when the session can show this effect, else the reason it cannot."""
@@ -122,8 +142,11 @@ class TemperatureBias(PerAxisEffect):
     description = 'the zero-g offset moves with temperature'
     param_names = ('c_x', 'c_y', 'c_z')
     unit = 'm/s² per °C'
+    variable = 'temperature'
 
     def applicable(self, context, baseline):
+        if not context.get('has_temp', True):
+            return 'no temperature column'
         span = context.get('temp_span', 0.0)
         return '' if span >= 3.0 else f'temperature spans only {span:.1f} °C'
 
@@ -141,6 +164,7 @@ class TemperatureScale(PerAxisEffect):
     description = 'the scale factor moves with temperature'
     param_names = ('s_x', 's_y', 's_z')
     unit = '1 per °C'
+    variable = 'temperature'
 
     applicable = TemperatureBias.applicable
 
@@ -158,6 +182,7 @@ class BiasDrift(PerAxisEffect):
     description = 'the zero-g offset wanders with time (not with temperature)'
     param_names = ('d_x', 'd_y', 'd_z')
     unit = 'm/s² per s'
+    variable = 'time'
 
     def applicable(self, context, baseline):
         span = context.get('time_span', 0.0)
