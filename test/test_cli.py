@@ -2,6 +2,7 @@
 
 import json
 import os
+import pathlib
 import re
 import subprocess
 import sys
@@ -401,11 +402,11 @@ def bad_files(tmp_path_factory, session_csv):
 
 @pytest.mark.parametrize('argv', BAD_ARGS, ids=lambda a: ' '.join(a))
 def test_bad_arguments_exit_2_with_one_line_and_touch_nothing(capsys, bad_files, argv):
-    before = {k: open(v, 'rb').read() for k, v in bad_files.items() if os.path.isfile(v)}
+    before = {k: pathlib.Path(v).read_bytes() for k, v in bad_files.items() if os.path.isfile(v)}
     code, out, err = run(capsys, *[a.format(**bad_files) for a in argv])
     assert code == 2, err
     assert err.count('\n') == 1 and 'Traceback' not in err and 'internal error' not in err, err
-    after = {k: open(v, 'rb').read() for k, v in bad_files.items() if os.path.isfile(v)}
+    after = {k: pathlib.Path(v).read_bytes() for k, v in bad_files.items() if os.path.isfile(v)}
     assert after == before
     assert not os.path.exists(bad_files['out'])
 

@@ -1,6 +1,7 @@
 """Model-gap workflow: each hidden effect is named, null sessions name nothing."""
 
 import json
+import pathlib
 import time
 
 from accel_calib_ros.cli import main
@@ -210,7 +211,7 @@ def test_report_has_a_residual_plot_per_step(tmp_path):
     sensor, baseline = hidden('temperature_bias', rng)
     result = diagnose_windows(windows_of(sensor, rng, hump), baseline, replicates=5)
     path = write_report(result, str(tmp_path / 'r'))
-    text = open(path).read()
+    text = pathlib.Path(path).read_text(encoding='utf-8')
     assert 'temperature_bias' in text and 'mg/°C' in text
     for name in ('gap.png', 'residuals_step0.png', 'residuals_step1.png'):
         assert name in text and (tmp_path / 'r' / name).stat().st_size > 1000
