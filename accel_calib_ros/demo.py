@@ -228,8 +228,7 @@ def run_ros_demo(args):
             windows = client.status.get('windows', 0)
             if windows != shown and windows:
                 shown = windows
-                print(f'  windows {windows:3d}/{args.poses}  next pose: '
-                      f'{client.status.get("next_pose", "?")}')
+                print(f'  windows {windows:3d}/{args.poses}  ' + _advice_line(client.status))
             if time.monotonic() > deadline or any(p.poll() is not None for p in procs):
                 print('demo: no progress; see the logs in ' + work, file=sys.stderr)
                 return 1
@@ -294,6 +293,19 @@ def run_offline_demo(args):
         print(f'{method}: corrected error RMS {np.sqrt(np.mean(err ** 2)):.4f} m/s² '
               f'({cal.iterations} iterations)')
     return 0
+
+
+def _advice_line(status):
+    """Return the calibration node's advice in words: accuracy now and the pose to hold."""
+    acc = status.get('predicted_accuracy')
+    now = 'predicted accuracy ' + ('not yet (too few poses)' if acc is None
+                                   else f'{acc:.4f} m/s²')
+    pose = status.get('next_pose')
+    if isinstance(pose, dict):
+        pose = pose.get('name')
+    if status.get('enough') or pose == 'enough':
+        return now + ': enough'
+    return f'{now}; next: hold {pose}' if pose else now
 
 
 def main(argv=None):
