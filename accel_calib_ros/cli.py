@@ -293,28 +293,6 @@ def _fit_summary(cal, extra):
     return d
 
 
-def _accuracy_refusal(cal, limit):
-    """Reason the fit is not good enough (None when it is), naming the missing poses."""
-    acc = cal.predicted_accuracy
-    if acc is not None and np.isfinite(acc) and acc <= limit:
-        return None
-    from .core.accuracy import worst_faces
-    try:
-        with np.errstate(all='ignore'):
-            faces = [f for f in worst_faces(cal.T, cal.covariance, cal.gravity)
-                     if not f[2] <= limit][:3]
-    except (np.linalg.LinAlgError, ValueError, TypeError):
-        faces = []
-    value = 'unknown' if acc is None or not np.isfinite(acc) else f'{acc:.4f} m/s²'
-    hint = ('; the poses do not pin the calibration down for: '
-            + ', '.join(f'{name} (predicted error {err:.3g} m/s²)' if np.isfinite(err)
-                        else name for name, _, err in faces)
-            + ' - hold the sensor that way (still, a few seconds each) and record again'
-            if faces else '; hold more distinct poses (each axis up and down) and record again')
-    return (f'predicted accuracy {value} is worse than the limit {limit:g} m/s² '
-            f'(--max-predicted-error){hint}')
-
-
 def _print_fit(cal, summary, n_obs, mode, samples, dropped, out_path):
     print(f'{cal.method} fit of {n_obs} {"windows" if mode == "windows" else "samples"} '
           f'({samples} samples): {"converged" if cal.converged else "NOT converged"} '
@@ -387,11 +365,12 @@ def cmd_fit(args, out):
         raise
     raw_resid = np.sqrt(np.mean((np.linalg.norm(obs.readings, axis=1) - args.gravity) ** 2))
     _drop_implausible_gyro_bias(cal)
-    refusal = _accuracy_refusal(cal, args.max_predicted_error)
-    if not cal.converged and not args.force:
-        refusal = (f'the {cal.method} fit did not converge in {cal.iterations} iterations; '
-                   'nothing written (' + (refusal or 'add more distinct poses, or --force to '
-                                          'write it anyway') + ')')
+    from .core.acceptance import review
+    verdict = review(cal, args.max_predicted_error, allow_unconverged=args.force,
+                     limit_name='--max-predicted-error')
+    refusal = verdict.refusal
+    if not verdict.converged and refusal is not None:
+        refusal += '; nothing written (--force writes it anyway)'
     extra = {'mode': args.mode, 'samples': len(samples), 'residual_rms_uncalibrated': raw_resid,
              'max_predicted_error': args.max_predicted_error, 'accepted': refusal is None,
              'refusal': refusal, 'dropped_windows': obs.dropped,
@@ -400,13 +379,8 @@ def cmd_fit(args, out):
         print(f'accel-calib: WARNING: the {cal.method} fit did NOT converge in '
               f'{cal.iterations} iterations; writing it only because of --force. Do not '
               'trust this calibration.', file=sys.stderr)
-    if refusal is None and cal.method == 'gn' and cal.observations < 10:
-        print(f'accel-calib: warning: the 6-parameter gn model assumes orthogonal axes; '
-              f'{cal.observations} poses cannot check that, so the predicted accuracy leaves '
-              'out any cross-axis error (up to ±2 % on an MPU-9250: hold 10 or more poses, '
-              'or use ml)', file=sys.stderr)
-    for problem in cal.physical_problems() if refusal is None else []:
-        print(f'accel-calib: warning: {problem} (are the data in m/s²?)', file=sys.stderr)
+    for warning in verdict.warnings if refusal is None else []:
+        print(f'accel-calib: warning: {warning}', file=sys.stderr)
     if refusal is None and args.output:
         from .dataio.calibration_file import save_calibration
         save_calibration(cal, args.output)

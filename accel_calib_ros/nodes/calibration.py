@@ -36,6 +36,7 @@ from std_srvs.srv import Trigger
 
 from .common import (calibration_path, declare_parameters, make_directory, Param,
                      ParameterProblem, run)
+from ..core.acceptance import review
 from ..core.advice import advise, coverage
 from ..core.calibration import calibrate
 from ..core.errors import CalibrationError, InputError
@@ -523,14 +524,15 @@ class CalibrationNode(Node):
             return err
 
         acc = cal.predicted_accuracy
-        if not cal.converged:
-            weak = acc is None or not acc <= p['max_predicted_error']
-            raise refuse(f'the {p["method"]} fit did not converge in {cal.iterations} '
-                         'iterations: add more distinct poses'
-                         + (f'; {self._accuracy_reason(cal)}' if weak else ''))
+        verdict = review(cal, p['max_predicted_error'], refuse_unphysical=True,
+                         max_scale_error=p['max_scale_error'],
+                         max_cross_axis=p['max_cross_axis'], max_bias_g=p['max_bias_g'],
+                         unit='m/s2')
+        if not verdict.converged:
+            raise refuse(self._refusal(verdict))
         expected = max(float(np.sqrt(np.mean(noise ** 2) / np.median(weights))),
                        MIN_WINDOW_NOISE)
-        if not cal.residual_rms <= p['max_residual_ratio'] * expected:
+        if not cal.residual_rms <= p['max_residual_ratio'] * expected:     # node only
             raise refuse(
                 f'gravity-norm residual {cal.residual_rms:.4f} m/s2 is '
                 f'{cal.residual_rms / expected:.0f}x the expected window noise '
@@ -539,13 +541,10 @@ class CalibrationNode(Node):
                 + ('' if thermal or not self._thermal_wanted(temps, 'auto') else
                    '; the windows fill two temperature bands: try thermal:=auto')
                 + '; the model-gap check follows on ~/status')
-        if acc is None or not acc <= p['max_predicted_error']:
-            raise refuse(self._accuracy_reason(cal))
-        problems = cal.physical_problems(p['max_scale_error'], p['max_cross_axis'],
-                                         p['max_bias_g'])
-        if problems:
-            raise refuse('not physical: ' + '; '.join(problems)
-                         + ' (are the readings in m/s2?)')
+        if not verdict.accepted:
+            raise refuse(self._refusal(verdict))
+        for warning in verdict.warnings:
+            self.get_logger().warning(warning)
         bands = 0 if cal.thermal is None else len(cal.thermal.usable)
         self._keep_level_trim(cal)
         self._make_directory(self.path)
@@ -620,21 +619,10 @@ class CalibrationNode(Node):
         if cal.sensor_id is None:
             cal.sensor_id = self.params['sensor_id'] or self.frame_id or None
 
-    def _accuracy_reason(self, cal):
-        limit = self.params['max_predicted_error']
-        acc = cal.predicted_accuracy
-        text = ('predicted accuracy unknown (the fit has no covariance)' if acc is None else
-                f'predicted accuracy {acc:.4f} m/s2 is worse than max_predicted_error '
-                f'{limit:g} m/s2')
-        try:
-            from ..core.accuracy import worst_faces
-            faces = worst_faces(cal.T, cal.covariance, cal.gravity, limit=limit)
-        except (ValueError, TypeError, np.linalg.LinAlgError):
-            faces = []
-        if faces:
-            text += '; missing: ' + ', '.join(f'{name} ({err:.3f} m/s2)'
-                                              for name, _, err in faces[:3])
-        if self._advice and self._advice.get('next_pose'):
+    def _refusal(self, verdict):
+        """Return the core's refusal, plus the advice's next pose when accuracy is short."""
+        text = verdict.refusal
+        if not verdict.accuracy_ok and self._advice and self._advice.get('next_pose'):
             text += f'; hold next: {self._advice["next_pose"]["name"]}'
         return text
 
