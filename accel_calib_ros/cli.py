@@ -154,6 +154,9 @@ def build_parser():
     p.add_argument('--gravity', type=GRAVITY, default=G0, help='gravity, m/s²')
     p.add_argument('--seed', type=SEED, default=0, help='random seed (0 to 2**32-1)')
     p.add_argument('--truth', help='write the true sensor parameters to this YAML')
+    p.add_argument('--noise-from', metavar='ALLAN.json',
+                   help='per-sample accel (and gyro) noise from "accel-calib allan --json" '
+                        '(white_sample_std, kept at its noise density at --rate)')
     p.add_argument('--json', action='store_true', help='print one JSON object')
 
     p = sub.add_parser('diagnose', help='find the physical effect the model is missing')
@@ -471,6 +474,8 @@ def cmd_simulate(args, out):
     from .dataio.recording import write_bag, write_samples_csv
     from .progress import Progress
     _check_output(args.truth, args.output, what='--truth')
+    _check_output(args.output, args.noise_from)
+    _check_output(args.truth, args.noise_from, what='--truth')
     if args.output and os.path.isdir(os.path.expanduser(args.output)):
         raise UsageError(f'accel-calib: output {args.output} is a directory')
     _check_suffix(args.output, ('.csv', '.mcap', '.db3'), 'simulate -o')
@@ -484,6 +489,11 @@ def cmd_simulate(args, out):
     sensor = sim.mpu9250_like(rng, args.rate, effects)
     if args.orthogonal:
         sensor.T = np.diag(np.diag(sensor.T))
+    if args.noise_from:
+        from .dataio.noise_file import noise_from_allan
+        sensor.noise_std, gyro_noise = noise_from_allan(args.noise_from, args.rate)
+        if gyro_noise is not None:
+            sensor.gyro_noise_std = gyro_noise
     if args.poses == 'faces':
         directions = sim.face_directions()
     else:
@@ -547,7 +557,8 @@ def sensor_to_dict(sensor, gravity):
             'bias_drift_m_s2_per_s': sensor.bias_drift.tolist(),
             'temp_ref_c': float(sensor.temp_ref), 'gravity_m_s2': float(gravity),
             'gyro_bias_rad_s': np.asarray(getattr(sensor, 'gyro_bias', np.zeros(3)),
-                                          float).tolist()}
+                                          float).tolist(),
+            'gyro_noise_std_rad_s': np.asarray(sensor.gyro_noise_std, float).tolist()}
 
 
 def cmd_diagnose(args, out):
@@ -600,6 +611,10 @@ def _check_device_args(args):
     finite('unplug_s', 0.0, 3600.0)
     _check_output(getattr(args, 'truth_out', None), getattr(args, 'link', None),
                   what='--truth-out')
+    _check_output(getattr(args, 'truth_out', None), getattr(args, 'noise_from', None),
+                  what='--truth-out')
+    _check_output(getattr(args, 'link', None), getattr(args, 'noise_from', None),
+                  what='--link')
 
 
 def _add_allan_parser(sub):

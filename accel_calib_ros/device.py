@@ -98,6 +98,9 @@ def add_arguments(parser):
                         choices=sorted(GYRO_LSB_PER_DPS),
                         help='gyroscope full scale, ±°/s (default 250)')
     parser.add_argument('--gravity', type=_positive, default=G0, help='gravity, m/s²')
+    parser.add_argument('--noise-from', metavar='ALLAN.json',
+                        help='per-sample accel (and gyro) noise from "accel-calib allan '
+                             '--json" (white_sample_std, kept at its noise density)')
     parser.add_argument('--truth-out', metavar='FILE.yaml',
                         help='write the true sensor parameters to this YAML file')
     parser.add_argument('--t0-us', type=int, default=None,
@@ -166,6 +169,15 @@ class VirtualSensor:
             if name not in EFFECTS:
                 raise DeviceError(f'unknown effect {name!r}: use {", ".join(EFFECTS)}')
         self.sensor = mpu9250_like(self.rng, rate_hz=args.rate, effects=effects)
+        if getattr(args, 'noise_from', None):
+            from .core.errors import InputError
+            from .dataio.noise_file import noise_from_allan
+            try:
+                self.sensor.noise_std, gyro = noise_from_allan(args.noise_from, args.rate)
+            except InputError as err:
+                raise DeviceError(str(err)) from None
+            if gyro is not None:
+                self.sensor.gyro_noise_std = gyro
         self.args = args
         self.directions = _directions(args, self.rng)
         self.converter = Converter(args.accel_range, args.gyro_range)
@@ -224,7 +236,7 @@ class VirtualSensor:
         temp = np.full(n, a.temp_ramp[1] if a.temp_ramp else a.temp)
         true = np.tile(a.gravity * self.directions[-1], (n, 1))
         accel = self.sensor.measure(true, self.rng, temp, t)
-        gyro = self.rng.standard_normal((n, 3)) * 0.002
+        gyro = self.rng.standard_normal((n, 3)) * self.sensor.gyro_noise_std
         return self.converter.to_counts_array(accel, temp, gyro)
 
     def counts(self, n, t_next):

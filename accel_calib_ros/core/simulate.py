@@ -48,6 +48,7 @@ class SensorModel:
     :param bias_drift: (3,) offset change with time, m/s² per s.
     :param temp_ref: reference temperature of ``T`` and ``bias``, °C.
     :param gyro_bias: (3,) gyroscope offset, rad/s (raw rate = true + gyro_bias).
+    :param gyro_noise_std: (3,) gyroscope white noise per sample, rad/s.
     """
 
     T: np.ndarray = field(default_factory=lambda: np.eye(3))
@@ -60,11 +61,12 @@ class SensorModel:
     bias_drift: np.ndarray = field(default_factory=lambda: np.zeros(3))
     temp_ref: float = 25.0
     gyro_bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    gyro_noise_std: np.ndarray = field(default_factory=lambda: np.full(3, 0.002))
 
     def __post_init__(self):
         self.T = np.asarray(self.T, dtype=float).reshape(3, 3)
         for name in ('bias', 'noise_std', 'nonlinearity', 'bias_tempco',
-                     'scale_tempco', 'bias_drift'):
+                     'scale_tempco', 'bias_drift', 'gyro_noise_std'):
             setattr(self, name, _vec3(getattr(self, name)))
 
     def with_effects(self, **fields):
@@ -256,6 +258,7 @@ def iter_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=100.0,
             return start + (end - start) * t / max((total - 1) * dt, dt)
     up = np.array([0.0, 0.0, gravity])
     gyro_bias = np.asarray(getattr(sensor, 'gyro_bias', np.zeros(3)), float)  # raw = true + b
+    gyro_noise = np.asarray(getattr(sensor, 'gyro_noise_std', 0.002), float)  # rad/s
     pieces, rows = [], 0
     first = 0
     gyro_world_last = np.zeros(3)
@@ -297,7 +300,7 @@ def iter_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=100.0,
             elif b == n and index + 1 == len(segments):  # the very last sample
                 gyro_world[-1] = gyro_world[-2] if m > 1 else gyro_world_last
             gyro_world_last = gyro_world[-1]
-            gyro = inverse.apply(gyro_world) + rng.standard_normal((m, 3)) * 0.002
+            gyro = inverse.apply(gyro_world) + rng.standard_normal((m, 3)) * gyro_noise
             gyro += gyro_bias
             temp = temp_at(t)
             raw = sensor.measure(true_accel, rng, temp, t)
