@@ -1,0 +1,26 @@
+"""Regressions found by fuzzing the command line with careless-user input."""
+
+from accel_calib_ros.cli import main
+import pytest
+
+
+@pytest.fixture(scope='module')
+def faces_csv(tmp_path_factory):
+    """Return a short simulated recording of the six faces."""
+    path = tmp_path_factory.mktemp('fuzz') / 'faces.csv'
+    assert main(['simulate', '-o', str(path), '--poses', 'faces', '--hold', '1.5',
+                 '--seed', '3']) == 0
+    return path
+
+
+@pytest.mark.parametrize('option, value', [
+    ('--sigma-floor', '1e308'),     # squared: OverflowError (was an internal error)
+    ('--gravity', '1e308'),         # overflowed inside the covariance, printed warnings
+    ('--gravity', '-0'),
+])
+def test_advise_out_of_range_options_are_one_line_exit_2(faces_csv, capsys, option, value):
+    capsys.readouterr()
+    assert main(['advise', str(faces_csv), option, value, '--json']) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ''
+    assert option in captured.err and len(captured.err.strip().splitlines()) == 1
