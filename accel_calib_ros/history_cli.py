@@ -137,6 +137,8 @@ def cmd_history(args, out):
     path = args.db or default_history_path()
     if not os.path.exists(path):
         raise InputError(f'no history at {path} (fit --history or guide --history creates it)')
+    if os.path.isfile(path) and os.path.getsize(path) == 0:     # listing must not write it
+        raise InputError(f'{path}: is an empty file, not a history database')
     if args.plot and _same(args.plot, path):
         raise _usage('the plot must not overwrite the history database')
     with History(path) as h:

@@ -24,3 +24,15 @@ def test_advise_out_of_range_options_are_one_line_exit_2(faces_csv, capsys, opti
     captured = capsys.readouterr()
     assert captured.out == ''
     assert option in captured.err and len(captured.err.strip().splitlines()) == 1
+
+
+def test_history_listing_leaves_an_empty_file_alone(tmp_path, capsys):
+    """``history --db`` on an empty file turned it into an SQLite database."""
+    empty = tmp_path / 'empty.csv'
+    empty.write_bytes(b'')
+    assert main(['history', '--db', str(empty), '--json']) == 2
+    captured = capsys.readouterr()
+    assert 'not a history database' in captured.err
+    assert len(captured.err.strip().splitlines()) == 1
+    assert empty.read_bytes() == b''
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['empty.csv']
