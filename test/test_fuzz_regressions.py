@@ -36,3 +36,20 @@ def test_history_listing_leaves_an_empty_file_alone(tmp_path, capsys):
     assert len(captured.err.strip().splitlines()) == 1
     assert empty.read_bytes() == b''
     assert sorted(p.name for p in tmp_path.iterdir()) == ['empty.csv']
+
+
+@pytest.mark.parametrize('text', ['t,ax,ay,az\n', 't,ax,ay,az\r\n', '\ufefft,ax,ay,az,temp\n'])
+def test_apply_on_a_header_only_csv_is_one_line_exit_2(tmp_path, capsys, faces_csv, text):
+    """A header-only CSV made the streaming reader of ``apply`` crash (UnboundLocalError)."""
+    cal = tmp_path / 'cal.yaml'
+    assert main(['fit', str(faces_csv), '--method', 'gn', '-o', str(cal), '--force']) in (0, 1)
+    capsys.readouterr()
+    if not cal.exists():
+        pytest.skip('no calibration to apply')
+    data = tmp_path / 'header.csv'
+    data.write_text(text, encoding='utf-8')
+    out = tmp_path / 'out.csv'
+    assert main(['apply', str(cal), str(data), '-o', str(out), '--json']) == 2
+    err = capsys.readouterr().err
+    assert 'no data rows' in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
