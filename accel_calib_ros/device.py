@@ -369,6 +369,9 @@ def run(args):
         sensor = VirtualSensor(args)
         if args.link and os.path.isdir(args.link):
             raise DeviceError(f'--link {args.link} is a directory')
+        if args.link and os.path.lexists(args.link) and not os.path.islink(args.link):
+            raise DeviceError(f'--link {args.link} exists and is not a symlink: replacing it '
+                              'would destroy it (choose a new name)')
         if args.link and not os.path.isdir(os.path.dirname(os.path.abspath(args.link))):
             raise DeviceError(f'--link {args.link}: the folder does not exist')
         if args.truth_out:

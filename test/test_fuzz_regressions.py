@@ -53,3 +53,13 @@ def test_apply_on_a_header_only_csv_is_one_line_exit_2(tmp_path, capsys, faces_c
     err = capsys.readouterr().err
     assert 'no data rows' in err and len(err.strip().splitlines()) == 1
     assert not out.exists()
+
+
+def test_simulate_device_link_never_replaces_a_regular_file(tmp_path, capsys):
+    """``simulate-device --link FILE`` replaced FILE by a pty symlink and then removed it."""
+    data = tmp_path / 'data.csv'
+    data.write_text('t,ax,ay,az\n0,0,0,9.8\n')
+    assert main(['simulate-device', '--link', str(data), '--duration', '0.01']) == 2
+    err = capsys.readouterr().err
+    assert 'not a symlink' in err and len(err.strip().splitlines()) == 1
+    assert data.read_text() == 't,ax,ay,az\n0,0,0,9.8\n' and not data.is_symlink()
