@@ -63,3 +63,18 @@ def test_simulate_device_link_never_replaces_a_regular_file(tmp_path, capsys):
     err = capsys.readouterr().err
     assert 'not a symlink' in err and len(err.strip().splitlines()) == 1
     assert data.read_text() == 't,ax,ay,az\n0,0,0,9.8\n' and not data.is_symlink()
+
+
+@pytest.mark.parametrize('name', ['data.csv', 'notes.txt'])
+def test_history_plot_must_be_a_png(tmp_path, capsys, faces_csv, name):
+    """``history --plot data.csv`` wrote a PNG over the user's CSV."""
+    db = tmp_path / 'h.sqlite'
+    assert main(['fit', str(faces_csv), '--method', 'gn', '--history', str(db),
+                 '--sensor', 's1', '--force']) in (0, 1)
+    victim = tmp_path / name
+    victim.write_text('keep me\n')
+    capsys.readouterr()
+    assert main(['history', '--db', str(db), '--plot', str(victim)]) == 2
+    err = capsys.readouterr().err
+    assert '.png' in err and len(err.strip().splitlines()) == 1
+    assert victim.read_text() == 'keep me\n'
