@@ -78,3 +78,14 @@ def test_history_plot_must_be_a_png(tmp_path, capsys, faces_csv, name):
     err = capsys.readouterr().err
     assert '.png' in err and len(err.strip().splitlines()) == 1
     assert victim.read_text() == 'keep me\n'
+
+
+def test_calibration_loader_refuses_a_fifo_instead_of_blocking(tmp_path):
+    """A FIFO named as the calibration file blocked the loader (and a node) forever."""
+    import os
+    from accel_calib_ros.core.errors import InputError
+    from accel_calib_ros.dataio.calibration_file import load_calibration
+    fifo = tmp_path / 'calibration.yaml'
+    os.mkfifo(fifo)
+    with pytest.raises(InputError, match='not a regular file'):
+        load_calibration(fifo)
