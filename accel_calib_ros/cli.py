@@ -348,6 +348,16 @@ def _print_fit(cal, summary, n_obs, mode, samples, dropped, out_path):
         print(f'wrote {out_path}')
 
 
+def _unstorable(cal):
+    """Reason the calibration file loader would refuse ``cal`` (None when it accepts it)."""
+    from .dataio.calibration_file import calibration_from_dict, calibration_to_dict
+    try:
+        calibration_from_dict(calibration_to_dict(cal))
+    except InputError as err:
+        return f'the fitted calibration is implausible ({err}); are the data in m/s²?'
+    return None
+
+
 def _drop_implausible_gyro_bias(cal):
     """Leave out a gyro bias no rad/s gyro has (the accelerometer fit still counts)."""
     from .dataio.calibration_file import MAX_GYRO_BIAS
@@ -392,6 +402,7 @@ def cmd_fit(args, out):
         refusal = (f'the {cal.method} fit did not converge in {cal.iterations} iterations; '
                    'nothing written (' + (refusal or 'add more distinct poses, or --force to '
                                           'write it anyway') + ')')
+    refusal = refusal or _unstorable(cal)
     extra = {'mode': args.mode, 'samples': len(samples), 'residual_rms_uncalibrated': raw_resid,
              'max_predicted_error': args.max_predicted_error, 'accepted': refusal is None,
              'refusal': refusal, 'dropped_windows': obs.dropped,

@@ -89,3 +89,25 @@ def test_calibration_loader_refuses_a_fifo_instead_of_blocking(tmp_path):
     os.mkfifo(fifo)
     with pytest.raises(InputError, match='not a regular file'):
         load_calibration(fifo)
+
+
+@pytest.mark.parametrize('with_output', [False, True])
+def test_fit_of_data_in_wrong_units_is_refused_with_one_json(
+        tmp_path, capsys, faces_csv, with_output):
+    """Data scaled by 1e-9: accepted without -o, refused with no JSON with -o."""
+    import json
+    import numpy as np
+    rows = np.loadtxt(faces_csv, delimiter=',', skiprows=1, usecols=(0, 1, 2, 3))
+    rows[:, 1:] *= 1e-9
+    data = tmp_path / 'tiny.csv'
+    np.savetxt(data, rows, delimiter=',', header='t,ax,ay,az', comments='')
+    out = tmp_path / 'cal.yaml'
+    out.write_text('old: file\n')
+    argv = ['fit', str(data), '--method', 'gn', '--json']
+    argv += ['-o', str(out)] if with_output else []
+    assert main(argv) == 1
+    captured = capsys.readouterr()
+    summary = json.loads(captured.out)
+    assert summary['accepted'] is False and 'implausible' in summary['refusal']
+    assert summary['output'] is None and 'implausible' in captured.err
+    assert out.read_text() == 'old: file\n'
