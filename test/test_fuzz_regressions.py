@@ -111,3 +111,23 @@ def test_fit_of_data_in_wrong_units_is_refused_with_one_json(
     assert summary['accepted'] is False and 'implausible' in summary['refusal']
     assert summary['output'] is None and 'implausible' in captured.err
     assert out.read_text() == 'old: file\n'
+
+
+def test_allan_refuses_a_stuck_sensor_and_leaves_out_a_constant_gyro(tmp_path, capsys):
+    """All-zero accelerometer data gave 'noise density 0' (and log(0) warnings) with exit 0."""
+    import json
+    import numpy as np
+    t = np.arange(3000) * 0.01
+    rng = np.random.default_rng(5)
+    accel = rng.normal(0, 0.02, (3000, 3)) + [0, 0, 9.8]
+    rows = np.column_stack([t, accel, np.zeros((3000, 3))])
+    data = tmp_path / 'still.csv'
+    np.savetxt(data, rows, delimiter=',', header='t,ax,ay,az,gx,gy,gz', comments='')
+    assert main(['allan', str(data), '--json']) == 0
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)['axes'] == ['ax', 'ay', 'az'] and captured.err == ''
+    rows[:, 1:4] = 0.0
+    np.savetxt(data, rows, delimiter=',', header='t,ax,ay,az,gx,gy,gz', comments='')
+    assert main(['allan', str(data), '--json']) == 1
+    err = capsys.readouterr().err
+    assert 'never change' in err and len(err.strip().splitlines()) == 1

@@ -153,7 +153,8 @@ def allan(samples, include_gyro=True, min_duration_s=10.0):
     :param include_gyro: also the gyro axes when recorded.
     :param min_duration_s: shortest recording worth a curve, s.
     :returns: AllanResult.
-    :raises CalibrationError: the recording is too short, or not sampled evenly enough.
+    :raises CalibrationError: the recording is too short, or not sampled evenly enough,
+        or an accelerometer axis never changes (a constant gyro axis leaves the gyro out).
     """
     n = len(samples)
     rate = samples.rate_hz
@@ -163,8 +164,14 @@ def allan(samples, include_gyro=True, min_duration_s=10.0):
             f'the recording lasts {duration:.1f} s ({n} samples); an Allan curve needs at '
             f'least {min_duration_s:.0f} s and 100 samples of a still sensor (minutes to '
             'hours for bias instability)')
+    stuck = [name for name, col in zip(('ax', 'ay', 'az'), samples.accel.T)
+             if np.ptp(col) == 0.0]
+    if stuck:
+        raise CalibrationError(
+            f'{", ".join(stuck)} never change over {n} samples: a stuck or disconnected '
+            'sensor (or data written with too few digits) has no noise to characterise')
     columns, axes = [samples.accel], ['ax', 'ay', 'az']
-    if include_gyro and samples.gyro is not None:
+    if include_gyro and samples.gyro is not None and np.all(np.ptp(samples.gyro, axis=0) > 0):
         columns.append(samples.gyro)
         axes += ['gx', 'gy', 'gz']
     x = np.hstack(columns)
