@@ -689,6 +689,14 @@ def _plain(value):
 
 def main(argv=None):
     """Entry point of the ``accel-calib`` console script; returns the exit status."""
+    import warnings
+    with warnings.catch_warnings():
+        if not os.environ.get('ACCEL_CALIB_DEBUG'):    # numpy's 0/0 notes are not for users
+            warnings.simplefilter('ignore', RuntimeWarning)
+        return _main(argv)
+
+
+def _main(argv):
     def out(obj):
         print(json.dumps(_plain(obj), allow_nan=False))
 

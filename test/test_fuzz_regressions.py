@@ -131,3 +131,18 @@ def test_allan_refuses_a_stuck_sensor_and_leaves_out_a_constant_gyro(tmp_path, c
     assert main(['allan', str(data), '--json']) == 1
     err = capsys.readouterr().err
     assert 'never change' in err and len(err.strip().splitlines()) == 1
+
+
+def test_numpy_runtime_warnings_do_not_reach_the_user(tmp_path, capsys, monkeypatch):
+    """The advice on all-zero data printed numpy's 'invalid value in divide' on stderr."""
+    import warnings
+    import numpy as np
+    monkeypatch.delenv('ACCEL_CALIB_DEBUG', raising=False)
+    rows = np.column_stack([np.arange(2000) * 0.01, np.zeros((2000, 3))])
+    data = tmp_path / 'zeros.csv'
+    np.savetxt(data, rows, delimiter=',', header='t,ax,ay,az', comments='')
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        assert main(['advise', str(data), '--json']) == 0
+    assert not [w for w in caught if issubclass(w.category, RuntimeWarning)]
+    assert capsys.readouterr().err == ''
