@@ -687,6 +687,21 @@ def _plain(value):
     return value
 
 
+PATH_OPTIONS = {'data': 'DATA', 'calibration': 'the calibration file', 'output': '-o',
+                'truth': '--truth', 'report': '--report', 'plot': '--plot',
+                'record': '--record', 'db': '--db', 'truth_out': '--truth-out',
+                'link': '--link', 'port': '--port', 'topic': '--topic'}
+"""File-name (and port/topic) arguments that an empty string must not silently drop."""
+
+
+def _check_not_empty(args):
+    """Refuse an empty file name (``-o "$UNSET"`` silently wrote nothing before)."""
+    for name, option in PATH_OPTIONS.items():
+        value = getattr(args, name, None)
+        if isinstance(value, str) and not value.strip():
+            raise UsageError(f'accel-calib: {option} is an empty name; give a file name')
+
+
 def main(argv=None):
     """Entry point of the ``accel-calib`` console script; returns the exit status."""
     import warnings
@@ -706,6 +721,7 @@ def _main(argv):
             args = _device_parser().parse_args(argv[1:])
         else:
             args = build_parser().parse_args(argv)
+        _check_not_empty(args)
         return COMMANDS[args.command](args, out)
     except UsageError as err:
         print(f'{err}', file=sys.stderr)

@@ -146,3 +146,19 @@ def test_numpy_runtime_warnings_do_not_reach_the_user(tmp_path, capsys, monkeypa
         assert main(['advise', str(data), '--json']) == 0
     assert not [w for w in caught if issubclass(w.category, RuntimeWarning)]
     assert capsys.readouterr().err == ''
+
+
+@pytest.mark.parametrize('argv', [
+    ['fit', '{data}', '-o', ''],           # was: exit 0, nothing written, no word said
+    ['diagnose', '{data}', '--report', ' '],
+    ['allan', '{data}', '--plot', ''],
+    ['advise', ''],                        # was: read '' as the current folder
+    ['history', '--db', ''],
+    ['simulate', '-o', 'x.csv', '--truth', ''],
+])
+def test_an_empty_file_name_is_a_usage_error(tmp_path, capsys, monkeypatch, faces_csv, argv):
+    monkeypatch.chdir(tmp_path)
+    assert main([a.format(data=faces_csv) for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert 'empty name' in err and len(err.strip().splitlines()) == 1
+    assert list(tmp_path.iterdir()) == []
