@@ -712,9 +712,13 @@ def main(argv=None):
 
 
 def _main(argv):
+    printed = []
+
     def out(obj):
         print(json.dumps(_plain(obj), allow_nan=False))
+        printed.append(True)
 
+    args = None
     try:
         argv = sys.argv[1:] if argv is None else list(argv)
         if argv[:1] == ['simulate-device']:
@@ -730,6 +734,8 @@ def _main(argv):
         print(f'accel-calib: error: {err}', file=sys.stderr)
         return 2
     except CalibrationError as err:
+        if getattr(args, 'json', False) and not printed:   # --json: still one object
+            out({'command': args.command, 'accepted': False, 'refusal': str(err)})
         print(f'accel-calib: cannot calibrate: {err}', file=sys.stderr)
         return 1
     except KeyboardInterrupt:

@@ -162,3 +162,17 @@ def test_an_empty_file_name_is_a_usage_error(tmp_path, capsys, monkeypatch, face
     err = capsys.readouterr().err
     assert 'empty name' in err and len(err.strip().splitlines()) == 1
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize('command', ['fit', 'advise', 'diagnose', 'allan'])
+def test_a_refusal_with_json_still_prints_one_strict_json_object(tmp_path, capsys, command):
+    """diagnose/allan/advise --json printed nothing on stdout when they refused (exit 1)."""
+    import json
+    data = tmp_path / 'one_row.csv'
+    data.write_text('t,ax,ay,az\n0,0.1,0.2,9.8\n')
+    assert main([command, str(data), '--json']) == 1
+    captured = capsys.readouterr()
+    lines = captured.out.strip().splitlines()
+    assert len(lines) == 1
+    summary = json.loads(lines[0], parse_constant=lambda c: pytest.fail(c))
+    assert summary['accepted'] is False and summary['refusal'] in captured.err
