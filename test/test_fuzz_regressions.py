@@ -176,3 +176,21 @@ def test_a_refusal_with_json_still_prints_one_strict_json_object(tmp_path, capsy
     assert len(lines) == 1
     summary = json.loads(lines[0], parse_constant=lambda c: pytest.fail(c))
     assert summary['accepted'] is False and summary['refusal'] in captured.err
+
+
+def test_history_never_writes_into_a_foreign_sqlite_database(tmp_path, capsys, faces_csv):
+    """``history --db bag.db3`` added its tables (and WAL mode) to a rosbag2 database."""
+    import sqlite3
+    bag = tmp_path / 'bag.db3'
+    con = sqlite3.connect(bag)
+    con.execute('CREATE TABLE messages (id INTEGER PRIMARY KEY, data BLOB)')
+    con.commit()
+    con.close()
+    before = bag.read_bytes()
+    for argv in (['history', '--db', str(bag), '--json'],
+                 ['fit', str(faces_csv), '--history', str(bag), '--sensor', 's1']):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert 'not an accel_calib_ros history' in err and len(err.strip().splitlines()) == 1
+    assert bag.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['bag.db3']
