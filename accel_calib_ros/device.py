@@ -124,7 +124,7 @@ def _directions(args, rng):
         return random_directions(args.count or 12, rng)
     path = args.poses
     try:
-        with open(path) as f:
+        with open(path, encoding='utf-8') as f:
             rows = []
             for number, line in enumerate(f, 1):
                 text = line.strip()
@@ -141,10 +141,13 @@ def _directions(args, rng):
                     raise DeviceError(f'{path}:{number}: expected x,y,z numbers')
     except OSError as err:
         raise DeviceError(f'cannot read pose file {path}: {err.strerror}')
+    except UnicodeDecodeError:
+        raise DeviceError(f'pose file {path} is not UTF-8 text') from None
     d = np.asarray(rows, float).reshape(-1, 3)
     if len(d) == 0:
         raise DeviceError(f'pose file {path} holds no poses')
-    norms = np.linalg.norm(d, axis=1)
+    with np.errstate(over='ignore', invalid='ignore'):
+        norms = np.linalg.norm(d, axis=1)
     if not np.all(np.isfinite(norms)) or np.any(norms < 1e-9):
         raise DeviceError(f'pose file {path}: every direction needs a non-zero finite length')
     d = d / norms[:, None]

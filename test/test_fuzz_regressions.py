@@ -194,3 +194,18 @@ def test_history_never_writes_into_a_foreign_sqlite_database(tmp_path, capsys, f
         assert 'not an accel_calib_ros history' in err and len(err.strip().splitlines()) == 1
     assert bag.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ['bag.db3']
+
+
+@pytest.mark.parametrize('content, words', [
+    (b'\xff\xfe\x00x\n', 'not UTF-8'),                   # was an internal error
+    (b'1e308,1e308,1e308\n', 'non-zero finite length'),  # was overflow warnings on stderr
+])
+def test_simulate_device_bad_pose_file_is_one_line_exit_2(tmp_path, capsys, content, words):
+    poses = tmp_path / 'poses.txt'
+    poses.write_bytes(content)
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        assert main(['simulate-device', '--poses', str(poses), '--duration', '0.01']) == 2
+    err = capsys.readouterr().err
+    assert words in err and len(err.strip().splitlines()) == 1
