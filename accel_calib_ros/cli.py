@@ -635,8 +635,11 @@ def _check_device_args(args):
     finite('t0_us', 0, 2 ** 32 - 1)
     finite('duration', 1e-3, 1e7)
     finite('unplug_s', 0.0, 3600.0)
+    poses = getattr(args, 'poses', None)            # a pose file is an input too
     _check_output(getattr(args, 'truth_out', None), getattr(args, 'link', None),
-                  what='--truth-out')
+                  poses if poses and os.path.isfile(poses) else None, what='--truth-out')
+    _check_output(getattr(args, 'link', None), poses if poses and os.path.isfile(poses)
+                  else None, what='--link')
 
 
 def _add_allan_parser(sub):

@@ -209,3 +209,15 @@ def test_simulate_device_bad_pose_file_is_one_line_exit_2(tmp_path, capsys, cont
         assert main(['simulate-device', '--poses', str(poses), '--duration', '0.01']) == 2
     err = capsys.readouterr().err
     assert words in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize('option', ['--truth-out', '--link'])
+def test_simulate_device_outputs_never_overwrite_the_pose_file(tmp_path, capsys, option):
+    """``--truth-out poses.txt --poses poses.txt`` wrote the truth YAML over the pose file."""
+    poses = tmp_path / 'poses.txt'
+    poses.write_text('1,0,0\n0,1,0\n0,0,1\n')
+    argv = ['simulate-device', '--poses', str(poses), option, str(poses), '--duration', '0.01']
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert 'destroy the input' in err and len(err.strip().splitlines()) == 1
+    assert poses.read_text() == '1,0,0\n0,1,0\n0,0,1\n'
