@@ -221,3 +221,16 @@ def test_simulate_device_outputs_never_overwrite_the_pose_file(tmp_path, capsys,
     err = capsys.readouterr().err
     assert 'destroy the input' in err and len(err.strip().splitlines()) == 1
     assert poses.read_text() == '1,0,0\n0,1,0\n0,0,1\n'
+
+
+@pytest.mark.parametrize('command', ['fit', 'advise', 'allan', 'diagnose'])
+def test_repeated_time_stamps_are_bad_input_not_too_few_samples(tmp_path, capsys, command):
+    """Unix times with 9 digits: 'fewer than two samples' (fit) or 'lasts 110 s, needs 10'."""
+    import numpy as np
+    t = np.round(1.7e9 + np.arange(3000) * 0.01, -1)         # 10 s resolution
+    rows = np.column_stack([t, np.zeros(3000), np.zeros(3000), np.full(3000, 9.8)])
+    data = tmp_path / 'unix.csv'
+    np.savetxt(data, rows, delimiter=',', header='t,ax,ay,az', comments='', fmt='%.17g')
+    assert main([command, str(data)]) == 2
+    err = capsys.readouterr().err
+    assert 'share their time stamp' in err and len(err.strip().splitlines()) == 1
