@@ -329,6 +329,16 @@ def _print_fit(cal, summary, n_obs, mode, samples, dropped, out_path):
         print(f'wrote {out_path}')
 
 
+def _unstorable(cal):
+    """Reason the calibration file loader would refuse ``cal`` (None when it accepts it)."""
+    from .dataio.calibration_file import calibration_from_dict, calibration_to_dict
+    try:
+        calibration_from_dict(calibration_to_dict(cal))
+    except InputError as err:
+        return f'the fitted calibration is implausible ({err}); are the data in m/s²?'
+    return None
+
+
 def _drop_implausible_gyro_bias(cal):
     """Leave out a gyro bias no rad/s gyro has (the accelerometer fit still counts)."""
     from .dataio.calibration_file import MAX_GYRO_BIAS
@@ -374,6 +384,7 @@ def cmd_fit(args, out):
     refusal = verdict.refusal
     if not verdict.converged and refusal is not None:
         refusal += '; nothing written (--force writes it anyway)'
+    refusal = refusal or _unstorable(cal)
     extra = {'mode': args.mode, 'samples': len(samples), 'residual_rms_uncalibrated': raw_resid,
              'max_predicted_error': args.max_predicted_error, 'accepted': refusal is None,
              'refusal': refusal, 'dropped_windows': obs.dropped,
@@ -609,12 +620,12 @@ def _check_device_args(args):
     finite('t0_us', 0, 2 ** 32 - 1)
     finite('duration', 1e-3, 1e7)
     finite('unplug_s', 0.0, 3600.0)
+    poses = getattr(args, 'poses', None)            # a pose file is an input too
     _check_output(getattr(args, 'truth_out', None), getattr(args, 'link', None),
-                  what='--truth-out')
-    _check_output(getattr(args, 'truth_out', None), getattr(args, 'noise_from', None),
-                  what='--truth-out')
-    _check_output(getattr(args, 'link', None), getattr(args, 'noise_from', None),
-                  what='--link')
+                  poses if poses and os.path.isfile(poses) else None,
+                  getattr(args, 'noise_from', None), what='--truth-out')
+    _check_output(getattr(args, 'link', None), poses if poses and os.path.isfile(poses)
+                  else None, getattr(args, 'noise_from', None), what='--link')
 
 
 def _add_allan_parser(sub):
@@ -665,17 +676,45 @@ def _plain(value):
     return value
 
 
+PATH_OPTIONS = {'data': 'DATA', 'calibration': 'the calibration file', 'output': '-o',
+                'truth': '--truth', 'report': '--report', 'plot': '--plot',
+                'record': '--record', 'db': '--db', 'truth_out': '--truth-out',
+                'link': '--link', 'port': '--port', 'topic': '--topic'}
+"""File-name (and port/topic) arguments that an empty string must not silently drop."""
+
+
+def _check_not_empty(args):
+    """Refuse an empty file name (``-o "$UNSET"`` silently wrote nothing before)."""
+    for name, option in PATH_OPTIONS.items():
+        value = getattr(args, name, None)
+        if isinstance(value, str) and not value.strip():
+            raise UsageError(f'accel-calib: {option} is an empty name; give a file name')
+
+
 def main(argv=None):
     """Entry point of the ``accel-calib`` console script; returns the exit status."""
+    import warnings
+    with warnings.catch_warnings():
+        if not os.environ.get('ACCEL_CALIB_DEBUG'):    # numpy's 0/0 notes are not for users
+            warnings.simplefilter('ignore', RuntimeWarning)
+        return _main(argv)
+
+
+def _main(argv):
+    printed = []
+
     def out(obj):
         print(json.dumps(_plain(obj), allow_nan=False))
+        printed.append(True)
 
+    args = None
     try:
         argv = sys.argv[1:] if argv is None else list(argv)
         if argv[:1] == ['simulate-device']:
             args = _device_parser().parse_args(argv[1:])
         else:
             args = build_parser().parse_args(argv)
+        _check_not_empty(args)
         return COMMANDS[args.command](args, out)
     except UsageError as err:
         print(f'{err}', file=sys.stderr)
@@ -684,6 +723,8 @@ def main(argv=None):
         print(f'accel-calib: error: {err}', file=sys.stderr)
         return 2
     except CalibrationError as err:
+        if getattr(args, 'json', False) and not printed:   # --json: still one object
+            out({'command': args.command, 'accepted': False, 'refusal': str(err)})
         print(f'accel-calib: cannot calibrate: {err}', file=sys.stderr)
         return 1
     except KeyboardInterrupt:

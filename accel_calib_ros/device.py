@@ -127,7 +127,7 @@ def _directions(args, rng):
         return random_directions(args.count or 12, rng)
     path = args.poses
     try:
-        with open(path) as f:
+        with open(path, encoding='utf-8') as f:
             rows = []
             for number, line in enumerate(f, 1):
                 text = line.strip()
@@ -144,10 +144,13 @@ def _directions(args, rng):
                     raise DeviceError(f'{path}:{number}: expected x,y,z numbers')
     except OSError as err:
         raise DeviceError(f'cannot read pose file {path}: {err.strerror}')
+    except UnicodeDecodeError:
+        raise DeviceError(f'pose file {path} is not UTF-8 text') from None
     d = np.asarray(rows, float).reshape(-1, 3)
     if len(d) == 0:
         raise DeviceError(f'pose file {path} holds no poses')
-    norms = np.linalg.norm(d, axis=1)
+    with np.errstate(over='ignore', invalid='ignore'):
+        norms = np.linalg.norm(d, axis=1)
     if not np.all(np.isfinite(norms)) or np.any(norms < 1e-9):
         raise DeviceError(f'pose file {path}: every direction needs a non-zero finite length')
     d = d / norms[:, None]
@@ -381,6 +384,9 @@ def run(args):
         sensor = VirtualSensor(args)
         if args.link and os.path.isdir(args.link):
             raise DeviceError(f'--link {args.link} is a directory')
+        if args.link and os.path.lexists(args.link) and not os.path.islink(args.link):
+            raise DeviceError(f'--link {args.link} exists and is not a symlink: replacing it '
+                              'would destroy it (choose a new name)')
         if args.link and not os.path.isdir(os.path.dirname(os.path.abspath(args.link))):
             raise DeviceError(f'--link {args.link}: the folder does not exist')
         if args.truth_out:

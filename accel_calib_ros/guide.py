@@ -25,6 +25,8 @@ from .core.advice import advise, coverage, DEFAULT_TARGET, MIN_WINDOWS, pose_nam
 from .core.errors import CalibrationError, InputError
 
 G0 = 9.80665
+MAX_SIGMA_FLOOR = 10.0
+"""Largest --sigma-floor accepted, m/s² (a floor of about 1 g already means no advice)."""
 
 
 # -- arguments ------------------------------------------------------------------------------
@@ -40,6 +42,20 @@ def _non_negative(text):
     return value
 
 
+def _positive_upto(high):
+    """Argparse type: a positive finite number no larger than ``high``."""
+    import argparse
+    from . import cli
+
+    def parse(text):
+        value = cli._positive(text)
+        if value > high:
+            raise argparse.ArgumentTypeError(f'must be at most {high:g}, got {text}')
+        return value
+    parse.__name__ = 'number'
+    return parse
+
+
 def add_parsers(sub):
     """
     Register ``advise`` and ``guide`` on the ``accel-calib`` subparsers.
@@ -53,9 +69,9 @@ def add_parsers(sub):
                    help='model the advice is for (default ml)')
     p.add_argument('--target', type=cli._positive, default=DEFAULT_TARGET,
                    help='predicted accuracy that is enough, m/s² (default %(default)s)')
-    p.add_argument('--gravity', type=cli._positive, default=G0,
+    p.add_argument('--gravity', type=cli.GRAVITY, default=G0,
                    help='local gravity magnitude, m/s² (default %(default)s)')
-    p.add_argument('--sigma-floor', type=_non_negative, default=None,
+    p.add_argument('--sigma-floor', type=cli._ranged(0.0, MAX_SIGMA_FLOOR), default=None,
                    help='error of a window mean that no averaging removes, m/s² '
                         '(default 0.001)')
     p.add_argument('--json', action='store_true', help='print one JSON object')
@@ -74,7 +90,11 @@ def add_parsers(sub):
     p.add_argument('--method', choices=('ml', 'gn'), default='ml')
     p.add_argument('--target', type=cli._positive, default=DEFAULT_TARGET,
                    help='predicted accuracy that is enough, m/s² (default %(default)s)')
-    p.add_argument('--gravity', type=cli._positive, default=G0)
+    p.add_argument('--gravity', type=cli.GRAVITY, default=G0)
+    p.add_argument('--max-predicted-error', type=cli._ranged(1e-9, 1e3), default=0.02,
+                   metavar='M_S2',
+                   help='refuse to write a calibration whose predicted accuracy is worse '
+                        'than this, m/s² (default %(default)s, as fit and the node)')
     p.add_argument('--hold', type=cli._positive, default=2.0,
                    help='seconds to hold each pose still (default %(default)s)')
     p.add_argument('--record', help='also write the raw samples to this CSV')
@@ -93,15 +113,17 @@ def add_parsers(sub):
     g = p.add_argument_group('ROS topic')
     g.add_argument('--temp-topic', help='sensor_msgs/Temperature topic (optional)')
     g = p.add_argument_group('simulation')
-    g.add_argument('--speed', type=cli._positive, default=1.0,
+    g.add_argument('--speed', type=_positive_upto(1e4), default=1.0,
                    help='simulated seconds per wall-clock second (default %(default)s)')
-    g.add_argument('--seed', type=int, default=0)
+    g.add_argument('--seed', type=cli.SEED, default=0)
     g.add_argument('--pose-error', type=_non_negative, default=3.0,
                    help='how far off the simulated person holds each pose, degrees')
     g.add_argument('--turn', type=cli._positive, default=2.0,
                    help='seconds the simulated person takes to turn (default %(default)s)')
-    g.add_argument('--temp', type=float, default=25.0, help='simulated temperature, °C')
-    g.add_argument('--rate', type=cli._positive, default=100.0, help='simulated rate, Hz')
+    g.add_argument('--temp', type=cli.TEMPERATURE, default=25.0,
+                   help='simulated temperature, °C')
+    g.add_argument('--rate', type=cli._ranged(1.0, 100000.0), default=100.0,
+                   help='simulated rate, Hz')
     return {'advise': cmd_advise, 'guide': cmd_guide}
 
 
@@ -693,6 +715,8 @@ def cmd_guide(args, out):
     from . import cli
     from .dataio.calibration_file import default_calibration_path
     output = args.output or default_calibration_path()
+    cli._check_output(output, args.port, what='-o')
+    cli._check_output(args.record, args.port, what='--record')
     if args.record and _same_file(args.record, output):
         raise cli.UsageError('accel-calib guide: --record and -o must be different files')
     history = None
@@ -766,7 +790,8 @@ def cmd_guide(args, out):
                     live.update(render(session, source.label), refresh=True)
                     last_draw = now
         if session is not None and session.enough:
-            status = _finish(session, output, source.label, console, history, args.sensor)
+            status = _finish(session, output, source.label, console, history, args.sensor,
+                             args.max_predicted_error)
         else:
             console.print(message or 'stopped: nothing written')
     except KeyboardInterrupt:
@@ -791,22 +816,28 @@ def _rate(stamp_lists):
     return 1.0 / float(np.median(dt))
 
 
-def _finish(session, output, label, console, history=None, sensor=None):
-    """Fit and write the calibration (and the history); return the exit status."""
+def _finish(session, output, label, console, history=None, sensor=None,
+            max_predicted_error=0.02):
+    """
+    Fit, review (the same acceptance rule as ``fit``) and write the calibration.
+
+    :return: the exit status (1 when the fit is refused: nothing written).
+    """
     try:
         cal = session.fit(source=f'accel-calib guide ({label})')
     except CalibrationError as err:
         console.print(f'cannot calibrate: {err}')
         return 1
-    problems = cal.physical_problems()
-    if problems:
-        console.print(f'cannot calibrate: not physical: {"; ".join(problems)} '
-                      '(are the readings in m/s²?); nothing written')
-        return 1
+    from .core.acceptance import review
     from .dataio.calibration_file import save_calibration
     adv = session.advice
     if cal.predicted_accuracy is None:
         cal.predicted_accuracy = adv.predicted_accuracy
+    verdict = review(cal, max_predicted_error, refuse_unphysical=True,
+                     limit_name='--max-predicted-error')
+    if verdict.refusal:
+        console.print(f'cannot calibrate: {verdict.refusal}; nothing written')
+        return 1
     temps = session.arrays()[2]
     temps = temps[np.isfinite(temps)]
     if cal.temperature_range_c is None and len(temps):

@@ -137,8 +137,14 @@ def cmd_history(args, out):
     path = args.db or default_history_path()
     if not os.path.exists(path):
         raise InputError(f'no history at {path} (fit --history or guide --history creates it)')
+    if os.path.isfile(path) and os.path.getsize(path) == 0:     # listing must not write it
+        raise InputError(f'{path}: is an empty file, not a history database')
     if args.plot and _same(args.plot, path):
         raise _usage('the plot must not overwrite the history database')
+    if args.plot:
+        from .cli import _check_output, _check_suffix
+        _check_output(args.plot, what='--plot')
+        _check_suffix(args.plot, ('.png',), 'history --plot')
     with History(path) as h:
         sensors = h.sensors() if args.sensor is None else [args.sensor]
         cals = h.calibrations(args.sensor)

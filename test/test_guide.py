@@ -116,3 +116,22 @@ def test_ros_source_receives_imu_and_temperature_from_topics():
     t, a, temp = (np.array(v) for v in zip(*got))
     np.testing.assert_allclose(a[-1], [0.5, 0.0, 9.8])
     assert temp[-1] == 31.5 and np.all(np.diff(t) > 0)
+
+
+@pytest.mark.parametrize('argv, words', [
+    (['--simulate', '--seed', '-1'], '--seed'),
+    (['--simulate', '--rate', '1e308'], '--rate'),
+    (['--simulate', '--speed', '1e308'], '--speed'),
+    (['--simulate', '--temp', 'nan'], '--temp'),
+    (['--simulate', '--gravity', '1e308'], '--gravity'),
+    (['--port', 'same.yaml', '-o', 'same.yaml'], 'destroy the input'),
+    (['--port', 'same.yaml', '--record', './same.yaml'], 'destroy the input'),
+])
+def test_guide_out_of_range_options_are_usage_errors(tmp_path, capsys, monkeypatch,
+                                                     argv, words):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / 'same.yaml').write_text('keep me\n')
+    assert main(['guide', '--timeout', '1', *argv]) == 2
+    err = capsys.readouterr().err
+    assert words in err and len(err.strip().splitlines()) == 1
+    assert (tmp_path / 'same.yaml').read_text() == 'keep me\n'

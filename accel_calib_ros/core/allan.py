@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import CalibrationError
+from .errors import CalibrationError, InputError
 
 MIN_CLUSTERS = 9
 """A cluster time is kept only when this many independent clusters fit in the record."""
@@ -153,18 +153,29 @@ def allan(samples, include_gyro=True, min_duration_s=10.0):
     :param include_gyro: also the gyro axes when recorded.
     :param min_duration_s: shortest recording worth a curve, s.
     :returns: AllanResult.
-    :raises CalibrationError: the recording is too short, or not sampled evenly enough.
+    :raises InputError: most time stamps repeat (median step 0).
+    :raises CalibrationError: the recording is too short, or not sampled evenly enough,
+        or an accelerometer axis never changes (a constant gyro axis leaves the gyro out).
     """
     n = len(samples)
     rate = samples.rate_hz
     duration = float(samples.t[-1] - samples.t[0]) if n > 1 else 0.0
+    if n >= 2 and not np.isfinite(rate):      # the median step is 0: most stamps repeat
+        raise InputError(f'most of the {n} rows share their time stamp with the row before: '
+                         'write t with more digits (seconds with at least 1 ms resolution)')
     if not np.isfinite(rate) or rate <= 0 or duration < min_duration_s or n < 100:
         raise CalibrationError(
             f'the recording lasts {duration:.1f} s ({n} samples); an Allan curve needs at '
             f'least {min_duration_s:.0f} s and 100 samples of a still sensor (minutes to '
             'hours for bias instability)')
+    stuck = [name for name, col in zip(('ax', 'ay', 'az'), samples.accel.T)
+             if np.ptp(col) == 0.0]
+    if stuck:
+        raise CalibrationError(
+            f'{", ".join(stuck)} never change over {n} samples: a stuck or disconnected '
+            'sensor (or data written with too few digits) has no noise to characterise')
     columns, axes = [samples.accel], ['ax', 'ay', 'az']
-    if include_gyro and samples.gyro is not None:
+    if include_gyro and samples.gyro is not None and np.all(np.ptp(samples.gyro, axis=0) > 0):
         columns.append(samples.gyro)
         axes += ['gx', 'gy', 'gz']
     x = np.hstack(columns)

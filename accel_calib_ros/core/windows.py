@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import CalibrationError
+from .errors import CalibrationError, InputError
 
 DEFAULTS = {'window_s': 0.25, 'min_duration_s': 0.3, 'threshold_factor': 3.0, 'trim_s': 0.1,
             'floor_quantile': 0.02, 'max_rotation_rad_s': float(np.radians(2.0))}
@@ -134,6 +134,10 @@ def still_mask(samples, window_s=DEFAULTS['window_s'],
     """
     rate = samples.rate_hz
     if not np.isfinite(rate):
+        if len(samples) >= 2:       # the median step is 0: most stamps repeat
+            raise InputError(f'most of the {len(samples)} rows share their time stamp with '
+                             'the row before: write t with more digits (seconds with at '
+                             'least 1 ms resolution)')
         raise CalibrationError('cannot find static windows in fewer than two samples')
     n = max(int(round(window_s * rate)), 3)
     acc_std = _moving_std(samples.accel, n)

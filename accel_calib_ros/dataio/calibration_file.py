@@ -16,6 +16,7 @@ scipy-free ``core.model`` only.
 
 import math
 import os
+import stat
 
 import numpy as np
 import yaml
@@ -347,6 +348,9 @@ def _load(path):
     try:
         if os.path.isdir(path):
             raise InputError(f'calibration file {path} is a directory')
+        if os.path.exists(path) and not stat.S_ISREG(os.stat(path).st_mode):
+            # a FIFO or a terminal would block the reader (and a node) forever
+            raise InputError(f'calibration file {path} is not a regular file')
         with open(path, 'rb') as f:
             data = f.read(MAX_FILE_BYTES + 1)
     except FileNotFoundError:

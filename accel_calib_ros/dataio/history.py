@@ -114,6 +114,11 @@ class History:
             raise InputError(f'cannot open history {self.path}: {err}') from None
         try:
             self.db.execute(f'PRAGMA busy_timeout = {int(BUSY_TIMEOUT_S * 1000)}')
+            tables = {row[0] for row in self.db.execute(
+                "SELECT name FROM sqlite_master WHERE type = 'table'")}
+            if tables and 'meta' not in tables:     # e.g. a rosbag2 .db3: leave it alone
+                raise InputError(f'{self.path}: an SQLite database of something else '
+                                 '(not an accel_calib_ros history); choose another file')
             self.db.execute('PRAGMA journal_mode = WAL')
             self.db.execute('PRAGMA synchronous = NORMAL')
             with self._write():
@@ -129,6 +134,9 @@ class History:
         except sqlite3.DatabaseError as err:
             self.db.close()
             raise InputError(f'{self.path}: not a history database ({err})') from None
+        except InputError:
+            self.db.close()
+            raise
 
     # -- plumbing ---------------------------------------------------------------------------
     def _write(self):

@@ -415,7 +415,7 @@ def _iter_csv(path, chunk_rows, on_read=None):
         f, names, header_lineno, layout = _open_csv(path)
         with f:
             used = list(layout)
-            offset, t_before = 0, None
+            offset, t_before, columns = 0, None, {}    # {}: no block at all (header only)
             try:
                 for block, nbytes in _parse_chunks(f, [layout[n] for n in used], chunk_rows):
                     if on_read is not None:
