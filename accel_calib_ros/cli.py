@@ -207,7 +207,9 @@ def _load(args):
 
 
 def _same_file(a, b):
-    """Return True when paths ``a`` and ``b`` name the same file (or would)."""
+    """Return True when paths ``a`` and ``b`` name the same file (or would; not if empty)."""
+    if not a or not b:
+        return False
     a, b = os.path.expanduser(os.fspath(a)), os.path.expanduser(os.fspath(b))
     try:
         if os.path.exists(a) and os.path.exists(b):

@@ -700,16 +700,6 @@ class _Keys:
             self.fd = None
 
 
-def _same_file(a, b):
-    a, b = os.path.abspath(a), os.path.abspath(b)
-    if a == b:
-        return True
-    try:
-        return os.path.samefile(a, b)
-    except OSError:
-        return False
-
-
 def cmd_guide(args, out):
     """Run ``accel-calib guide``; return the exit status."""
     from . import cli
@@ -717,13 +707,13 @@ def cmd_guide(args, out):
     output = args.output or default_calibration_path()
     cli._check_output(output, args.port, what='-o')
     cli._check_output(args.record, args.port, what='--record')
-    if args.record and _same_file(args.record, output):
+    if cli._same_file(args.record, output):
         raise cli.UsageError('accel-calib guide: --record and -o must be different files')
     history = None
     if args.history is not None:
         from .dataio.history import default_history_path
         history = args.history or default_history_path()
-        if any(_same_file(history, f) for f in (output, args.record) if f):
+        if any(cli._same_file(history, f) for f in (output, args.record)):
             raise cli.UsageError('accel-calib guide: the history must not be the output or '
                                  'the record file')
         args.sensor = args.sensor or args.port or args.topic or f'simulated-{args.seed}'

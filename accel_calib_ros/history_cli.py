@@ -39,17 +39,6 @@ def _history_path(args):
     return path
 
 
-def _same(a, b):
-    if not a or not b:
-        return False
-    if os.path.abspath(a) == os.path.abspath(b):
-        return True
-    try:
-        return os.path.samefile(a, b)
-    except OSError:
-        return False
-
-
 def history_observations(args, samples, obs):
     """
     Add this recording's windows to the history; return the observations of all of them.
@@ -66,9 +55,10 @@ def history_observations(args, samples, obs):
         raise _usage('fit --history works on static windows (--mode windows)')
     if not args.sensor:
         raise _usage('fit --history needs --sensor NAME (whose history it is)')
+    from .cli import _same_file
     from .dataio.history import History
     path = _history_path(args)
-    if _same(path, args.data) or _same(path, args.output):
+    if _same_file(path, args.data) or _same_file(path, args.output):
         raise _usage('the history database must not be the data or the output file')
     t = samples.t
     if len(t) and t[0] > 1e9:            # stamps are already Unix times (a rosbag)
@@ -132,6 +122,7 @@ def _iso(t):
 
 def cmd_history(args, out):
     """Run ``accel-calib history``; return the exit status."""
+    from .cli import _same_file
     from .core.errors import InputError
     from .dataio.history import default_history_path, History
     path = args.db or default_history_path()
@@ -139,7 +130,7 @@ def cmd_history(args, out):
         raise InputError(f'no history at {path} (fit --history or guide --history creates it)')
     if os.path.isfile(path) and os.path.getsize(path) == 0:     # listing must not write it
         raise InputError(f'{path}: is an empty file, not a history database')
-    if args.plot and _same(args.plot, path):
+    if _same_file(args.plot, path):
         raise _usage('the plot must not overwrite the history database')
     if args.plot:
         from .cli import _check_output, _check_suffix
