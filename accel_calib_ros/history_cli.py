@@ -192,7 +192,7 @@ def plot_drift(cals, path):
     import matplotlib.dates as mdates
     import matplotlib.pyplot as plt
     import numpy as np
-    from .dataio.atomic import atomic_path
+    from .report import save_figure
     fig, axes = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
     colours = {'x': 'tab:red', 'y': 'tab:green', 'z': 'tab:blue'}
     for sensor in sorted({c['sensor_id'] for c in cals}):
@@ -220,7 +220,4 @@ def plot_drift(cals, path):
     locator = mdates.AutoDateLocator()
     axes[2].xaxis.set_major_locator(locator)
     axes[2].xaxis.set_major_formatter(mdates.ConciseDateFormatter(locator))
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=90, format='png')
-    plt.close(fig)
+    save_figure(fig, path)

@@ -25,6 +25,14 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402, I100
 
 
+def save_figure(fig, path):
+    """Lay out ``fig``, write it as PNG to ``path`` atomically and close it."""
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90, format='png')
+    plt.close(fig)
+
+
 def _residual_figure(path, fit, model_label, c, directions):
     """
     Plot one model's normalised residuals against the session's variables.
@@ -66,10 +74,7 @@ def _residual_figure(path, fit, model_label, c, directions):
     axes[0].set_ylabel('(|a| - g) / noise')
     axes[0].legend(fontsize=7, loc='best', ncol=2)
     fig.suptitle(f'{model_label}: gap {fit.gap:.2f}')
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=90)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def _probe_figure(path, result):
@@ -109,10 +114,7 @@ def _probe_figure(path, result):
         ax.set_title(f'{name}: p = {probe["p"]:.1e} ({mark})', fontsize=9)
         ax.grid(alpha=0.3)
     fig.suptitle('Where the final residual lives (nonparametric probes)')
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=90, format='png')
-    plt.close(fig)
+    save_figure(fig, path)
     return True
 
 
@@ -129,10 +131,7 @@ def write_report(result, folder):
     ax.set_xticks(range(len(gaps)), labels, rotation=20)
     ax.set_ylabel('gap = sqrt(chi²/dof)')
     ax.set_yscale('log')
-    fig.tight_layout()
-    with atomic_path(os.path.join(folder, 'gap.png')) as tmp:
-        fig.savefig(tmp, dpi=90)
-    plt.close(fig)
+    save_figure(fig, os.path.join(folder, 'gap.png'))
 
     images = []
     for k, fit in enumerate(result.fits):
@@ -231,7 +230,4 @@ def write_allan_plot(result, path):
         ax.grid(True, which='both', alpha=0.3)
         ax.legend(fontsize=8)
     fig.suptitle('Allan deviation (dotted: white noise N/√τ; band: 95 %)')
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=90, format='png')
-    plt.close(fig)
+    save_figure(fig, path)
