@@ -153,3 +153,25 @@ def test_temperature_rate_parameter_and_runtime_changes(rigs):
     rig.imu.clear()
     rig.write(frames(50, start=300))
     assert rig.spin_until(lambda: len(rig.imu) >= 50 and len(rig.temp) >= 50, 10)
+
+
+def test_reader_survives_an_exception_and_reports_it(rigs):
+    """Regression: an exception in the reader thread stopped the driver for good."""
+    rig = rigs()
+    node = rig.node
+    real_feed = node.parser.feed
+    calls = []
+
+    def failing_feed(data):
+        calls.append(len(data))
+        if len(calls) == 1:
+            raise AttributeError("'tuple' object has no attribute 'seq'")
+        return real_feed(data)
+    node.parser.feed = failing_feed
+    time.sleep(0.3)
+    rig.write(frames(10))
+    assert rig.spin_until(lambda: node.reader_errors == 1, 5)
+    rig.write(frames(200, start=10))
+    assert rig.spin_until(lambda: len(rig.imu) >= 150, 10)      # the reader restarted
+    assert rig.spin_until(lambda: rig.status()[1] is not None
+                          and rig.status()[1]['reader_errors'] == '1', 5)

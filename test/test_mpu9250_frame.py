@@ -1,6 +1,7 @@
 """The MPU9250 wire format: CRC, frames, resynchronisation, ASCII, units, clock mapping."""
 
 import math
+import random
 import struct
 
 from accel_calib_ros.dataio.mpu9250_frame import (accel_scale, AsciiLineParser, ClockMapper,
@@ -337,3 +338,19 @@ def test_badly_damaged_link_publishes_no_garbage():
     clean_parser = FrameParser()
     clean_parser.feed(encode_all(frames[:2000]))
     assert not clean_parser.strict and clean_parser.quality > 0.9
+
+
+def test_link_recovering_from_strict_mode_does_not_raise():
+    """Regression: a frame held on a bad link was released as a tuple (AttributeError)."""
+    rng = random.Random(1)
+    parser = FrameParser()
+    parser.feed(rng.randbytes(20000))                 # link quality falls: strict mode
+    assert parser.strict
+    out = []
+    for start in range(0, 400, 10):                   # clean frames: quality recovers
+        out += parser.feed(b''.join(encode_frame(k & 0xFF, 1000 * k, (0, 0, 16384, 0, 1, 2, 3))
+                                    for k in range(start, start + 10)))
+    assert not parser.strict
+    stamps = [f.t_us for f in out]
+    assert stamps == sorted(set(stamps)) and len(out) >= 390
+    assert all(f.seq == (f.t_us // 1000) & 0xFF for f in out)     # only frames that were sent

@@ -332,8 +332,8 @@ class FrameParser:
         held = self._held
         if self.spike_counts is None and not self.strict:
             self._held = None
-            if held is not None:
-                self._release(held, frame, out, False)
+            if held is not None:                 # held while the link was bad
+                self._release(held[0], frame, out, False)
             self._release(frame, None, out, True)
             return
         self._held = (frame, adjacent)

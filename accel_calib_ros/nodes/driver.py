@@ -47,6 +47,8 @@ TIMESTAMPS = ('device', 'host')
 CHIP_CHOICES = ('auto', 'mpu9250', 'mpu9255', 'mpu6500', 'mpu6050')
 INFO_REQUEST = b'?'
 INFO_WAIT_S = 1.5
+READER_ERROR_LOG_S = 10.0
+"""At most one log line per this many seconds about reader failures."""
 BITS_PER_BYTE = 10
 
 PARAMS = [
@@ -129,7 +131,10 @@ class Mpu9250Driver(Node):
         self.reconnects = 0
         self.published = 0
         self._last_error = ''
-        self._diag_prev = (time.monotonic(), 0, 0, 0)
+        self.reader_errors = 0
+        self._last_reader_error = ''
+        self._reader_error_logged = -math.inf
+        self._diag_prev = (time.monotonic(), 0, 0, 0, 0)
         self._stop = threading.Event()
         self._serial = None
         self._thread = threading.Thread(target=self._run, name='mpu9250_serial', daemon=True)
@@ -245,6 +250,26 @@ class Mpu9250Driver(Node):
         return ser
 
     def _run(self):
+        """Supervise the reader: an exception is logged (throttled), counted and restarts it."""
+        while not self._stop.is_set():
+            try:
+                self._read_loop()
+            except Exception as err:    # noqa: B902 - nothing may stop the reader for good
+                self.reader_errors += 1
+                self._last_reader_error = f'{type(err).__name__}: {err}'
+                now = time.monotonic()
+                if now - self._reader_error_logged >= READER_ERROR_LOG_S:
+                    self._reader_error_logged = now
+                    self.get_logger().error(
+                        f'serial reader failed ({self._last_reader_error}); restarting it '
+                        f'(reader_errors {self.reader_errors} in /diagnostics)')
+                self.parser.reset()     # the partial frame and the sequence are suspect
+                self.clock_mapper.reset()
+                self._prev_stamp = None
+                self._stop.wait(READ_TIMEOUT_S)
+        self._drop_port()
+
+    def _read_loop(self):
         delay = self.reconnect_min_s
         outage_logged = False
         ever_connected = False
@@ -297,7 +322,6 @@ class Mpu9250Driver(Node):
             elif isinstance(self.parser, FrameParser):
                 self._publish(self.parser.flush(), self.get_clock().now().nanoseconds * 1e-9)
             self._maybe_request_info()
-        self._drop_port()
 
     def _maybe_request_info(self):
         """Ask the firmware for its info frame when none came soon after connecting."""
@@ -411,8 +435,9 @@ class Mpu9250Driver(Node):
     def _publish_diagnostics(self):
         now = time.monotonic()
         c = self.counters()
-        t0, frames0, errors0, lost0 = self._diag_prev
-        self._diag_prev = (now, c['frames'], c['crc_errors'], c['lost_frames'])
+        t0, frames0, errors0, lost0, failures0 = self._diag_prev
+        self._diag_prev = (now, c['frames'], c['crc_errors'], c['lost_frames'],
+                           self.reader_errors)
         rate = (c['frames'] - frames0) / max(now - t0, 1e-3)
         new_errors = c['crc_errors'] - errors0
         new_lost = c['lost_frames'] - lost0
@@ -428,6 +453,10 @@ class Mpu9250Driver(Node):
         elif rate <= 0:
             status.level = DiagnosticStatus.WARN
             status.message = 'connected, no frames'
+        elif self.reader_errors > failures0:
+            status.level = DiagnosticStatus.ERROR
+            status.message = (f'serial reader failed and was restarted: '
+                              f'{self._last_reader_error}')
         elif isinstance(self.parser, FrameParser) and self.parser.strict:
             status.level = DiagnosticStatus.ERROR
             status.message = (f'link badly corrupted (quality {self.parser.quality:.2f}): only '
@@ -445,6 +474,7 @@ class Mpu9250Driver(Node):
                   'crc_errors': c['crc_errors'], 'lost_frames': c['lost_frames'],
                   'bytes_skipped': c['bytes_skipped'], 'connected': self.connected,
                   'rejected': c['rejected'], 'reconnects': self.reconnects,
+                  'reader_errors': self.reader_errors,
                   'format': self.format, 'timestamp': self.timestamp, 'baud': self.baud,
                   'accel_range_g': self.accel_range_g, 'gyro_range_dps': self.gyro_range_dps,
                   'temperature_formula': self.converter.temp_formula}
