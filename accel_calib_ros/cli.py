@@ -14,7 +14,7 @@ import sys
 
 import numpy as np
 
-from .core.calibration import calibrate, METHODS
+from .core.accel.calibration import calibrate, METHODS
 from .core.errors import CalibrationError, InputError
 from .core.samples import Samples
 from .core.windows import DEFAULTS, detect_static_windows
@@ -255,7 +255,7 @@ def _observations(samples, args):
                'shows rotation' if windows.dropped else ''))
     weights = windows.weights(args.max_weight_s, samples.rate_hz)
     dropped = list(windows.dropped)
-    from .core.calibration import find_outlier_windows
+    from .core.accel.calibration import find_outlier_windows
     keep, outliers = find_outlier_windows(
         windows.mean, weights, windows.count, windows.noise_std, args.gravity,
         windows.temp, getattr(args, 'thermal', False), getattr(args, 'band_width', 10.0),

@@ -275,7 +275,7 @@ def _report(client, truth_path):
 
 def run_offline_demo(args):
     """Without ROS: simulate a session, fit it with both methods, show the correction."""
-    from .core.calibration import calibrate
+    from .core.accel.calibration import calibrate
     from .core.simulate import mpu9250_like, random_directions, simulate_session
     from .core.windows import detect_static_windows
     rng = np.random.default_rng(args.seed)

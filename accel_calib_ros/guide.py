@@ -339,7 +339,7 @@ class GuideSession:
 
     def fit(self, source=''):
         """Fit the calibration to the windows; CalibrationError when it cannot."""
-        from .core.calibration import calibrate
+        from .core.accel.calibration import calibrate
         means, weights, temps, noise = self.arrays()
         return calibrate(means, gravity=self.gravity, method=self.method, weights=weights,
                          temps=temps, noise_std=noise, source=source)

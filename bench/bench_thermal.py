@@ -12,7 +12,7 @@ Prints figures, asserts nothing.
 
 import argparse
 
-from accel_calib_ros.core.calibration import calibrate
+from accel_calib_ros.core.accel.calibration import calibrate
 from accel_calib_ros.core.simulate import mpu9250_like, random_directions, simulate_session
 from accel_calib_ros.core.windows import detect_static_windows
 import numpy as np

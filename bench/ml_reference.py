@@ -10,8 +10,8 @@ checks and the result dataclass are left out.
 import time
 from types import SimpleNamespace
 
+from accel_calib_ros.core.accel.ml import pack, unpack
 from accel_calib_ros.core.errors import CalibrationError
-from accel_calib_ros.core.ml import pack, unpack
 import numpy as np
 
 UPPER = np.triu_indices(3)

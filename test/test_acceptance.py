@@ -1,7 +1,7 @@
 """The one accept-or-refuse decision shared by ``accel-calib fit`` and the node."""
 
+from accel_calib_ros.core.accel.calibration import calibrate
 from accel_calib_ros.core.acceptance import review
-from accel_calib_ros.core.calibration import calibrate
 from accel_calib_ros.core.simulate import mpu9250_like, random_directions, simulate_window_means
 import numpy as np
 

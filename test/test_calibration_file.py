@@ -5,10 +5,10 @@ import os
 import subprocess
 import sys
 
+from accel_calib_ros.core.accel.thermal import ThermalBand, ThermalTable
 from accel_calib_ros.core.accuracy import direction_errors, predicted_accuracy, worst_faces
 from accel_calib_ros.core.errors import CalibrationError, InputError
 from accel_calib_ros.core.model import Calibration
-from accel_calib_ros.core.thermal import ThermalBand, ThermalTable
 from accel_calib_ros.dataio.calibration_file import (calibration_from_dict, calibration_to_dict,
                                                      calibration_to_yaml, load_calibration,
                                                      save_calibration)

@@ -1,10 +1,10 @@
 """Predicted accuracy, outlier windows, the gyro in the static test and the gyro bias (core)."""
 
+from accel_calib_ros.core.accel.calibration import (calibrate, check_geometry, estimate_gyro_bias,
+                                                    find_outlier_windows, missing_faces)
+from accel_calib_ros.core.accel.ml import cramer_rao_bound, fit_ml
 from accel_calib_ros.core.accuracy import predicted_accuracy
-from accel_calib_ros.core.calibration import (calibrate, check_geometry, estimate_gyro_bias,
-                                              find_outlier_windows, missing_faces)
 from accel_calib_ros.core.errors import CalibrationError
-from accel_calib_ros.core.ml import cramer_rao_bound, fit_ml
 from accel_calib_ros.core.samples import Samples
 from accel_calib_ros.core.simulate import (mpu9250_like, random_directions, simulate_session,
                                            simulate_window_means)

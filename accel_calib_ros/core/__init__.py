@@ -1,9 +1,9 @@
-"""ROS-free calibration science: numpy and scipy only, importable anywhere."""
+"""
+The science of calibration, ROS-free and file-free: numpy and scipy only.
 
-from .calibration import calibrate, Calibration, METHODS
-from .errors import CalibrationError, InputError
-from .samples import Samples
-from .windows import detect_static_windows, StaticWindows
-
-__all__ = ['calibrate', 'Calibration', 'CalibrationError', 'InputError', 'METHODS',
-           'Samples', 'detect_static_windows', 'StaticWindows']
+``accel`` fits the accelerometer (maximum likelihood, Gauss-Newton, ellipsoid,
+temperature bands); ``windows`` finds the static windows, offline and streamed;
+``accuracy``, ``advice`` and ``acceptance`` predict, advise and decide; ``simulate``
+makes sessions of a virtual sensor. Nothing here imports ``dataio``, ``nodes`` or
+``cli``: every other floor may import from here.
+"""

@@ -314,11 +314,11 @@ def _check_inputs(means, weights, noise_std, gravity, method, target):
 def _estimate(means, weights, gravity, method):
     """Fit ``method``; return (T, bias, unit directions) or raise CalibrationError."""
     if method == 'gn':
-        from .gn import fit_gn
+        from .accel.gn import fit_gn
         fit = fit_gn(means, weights, gravity)
         T, bias = fit.T, fit.bias
     else:
-        from .ml import fit_ml
+        from .accel.ml import fit_ml
         fit = fit_ml(means, weights, gravity, max_iter=60)
         T, bias = fit.T, fit.bias
     if not (np.all(np.isfinite(T)) and np.all(np.isfinite(bias))) \

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize, stats
 
-from .calibration import calibrate
+from .accel.calibration import calibrate
 from .effects import EFFECTS, G0
 from .errors import CalibrationError
 from .windows import detect_static_windows
@@ -1120,7 +1120,7 @@ def _detect_windows(samples, min_duration_s, threshold_factor):
     """
     from scipy import signal
     from .samples import Samples
-    from .windows import DEFAULTS, still_mask, windows_from_ranges, _runs
+    from .windows import DEFAULTS, still_mask, still_runs, windows_from_ranges
     windows = detect_static_windows(samples, min_duration_s=min_duration_s,
                                     threshold_factor=threshold_factor)
     rate = samples.rate_hz
@@ -1134,7 +1134,7 @@ def _detect_windows(samples, min_duration_s, threshold_factor):
     smooth = Samples(samples.t[:n * k:k], signal.filtfilt(b, a, coarse, axis=0))
     mask, floor = still_mask(smooth, threshold_factor=threshold_factor)
     trim = int(round(DEFAULTS['trim_s'] * rate))
-    starts, stops = _runs(mask)
+    starts, stops = still_runs(mask)
     starts, stops = starts * k + trim, np.minimum(stops * k, len(samples)) - trim
     keep = stops - starts >= max(int(round(min_duration_s * rate)), 2)
     if keep.sum() <= len(windows):

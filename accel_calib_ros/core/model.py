@@ -18,7 +18,7 @@ import datetime
 
 import numpy as np
 
-from .thermal import ThermalTable
+from .accel.thermal import ThermalTable
 
 METHODS = ('ml', 'ml-bc', 'gn', 'ellipsoid')
 """Fitting methods a calibration can come from."""

@@ -21,9 +21,9 @@ import stat
 import numpy as np
 import yaml
 
+from ..core.accel.thermal import ThermalBand, ThermalTable
 from ..core.errors import CalibrationError, InputError
 from ..core.model import Calibration, METHODS, PARAMETER_NAMES
-from ..core.thermal import ThermalBand, ThermalTable
 
 FORMAT = 'accel_calib_ros/calibration'
 VERSION = 1

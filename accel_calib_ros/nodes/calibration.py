@@ -34,13 +34,13 @@ from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from .common import (calibration_path, declare_parameters, make_directory, Param,
-                     ParameterProblem, run)
+from .common import (calibration_path, declare_parameters, make_directory, Param, ParameterProblem,
+                     run)
+from ..core.accel.calibration import calibrate
+from ..core.accel.thermal import MIN_WINDOWS_PER_BAND
 from ..core.acceptance import review
 from ..core.advice import advise, coverage
-from ..core.calibration import calibrate
 from ..core.errors import CalibrationError, InputError
-from ..core.thermal import MIN_WINDOWS_PER_BAND
 from ..core.windows import DEFAULTS, OnlineStaticDetector, StaticWindows
 from ..dataio.calibration_file import save_calibration
 

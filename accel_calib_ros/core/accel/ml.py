@@ -26,9 +26,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .ellipsoid import (
-    apply, BLOCK, check_scatter, cross_product, fit_ellipsoid_columns, UPPER)
-from .errors import CalibrationError
+from .ellipsoid import apply, BLOCK, check_scatter, cross_product, fit_ellipsoid_columns, UPPER
+from ..errors import CalibrationError
 
 PARAMETER_NAMES = ('T_xx', 'T_xy', 'T_xz', 'T_yy', 'T_yz', 'T_zz', 'b_x', 'b_y', 'b_z')
 """Order of the 9 calibration parameters in vectors and covariances."""

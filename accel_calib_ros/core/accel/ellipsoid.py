@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from .errors import CalibrationError
+from ..errors import CalibrationError
 
 UPPER = np.triu_indices(3)
 """Row-major indices of the six upper-triangular entries of T."""

@@ -17,14 +17,14 @@ import time
 
 import numpy as np
 
-from .accuracy import fisher_information, predicted_accuracy
 from .ellipsoid import fit_ellipsoid
-from .errors import CalibrationError, InputError
 from .gn import fit_gn
 from .ml import fit_ml, fit_ml_bias_corrected
-from .model import Calibration, METHODS
 from .thermal import fit_thermal_table
-from .windows import distinct_directions
+from ..accuracy import fisher_information, predicted_accuracy
+from ..errors import CalibrationError, InputError
+from ..model import Calibration, METHODS
+from ..windows import distinct_directions
 
 __all__ = ['Calibration', 'METHODS', 'calibrate', 'check_geometry', 'estimate_gyro_bias',
            'find_outlier_windows', 'gravity_residuals', 'missing_faces', 'parameter_covariance']
@@ -89,7 +89,7 @@ def missing_faces(readings, within_deg=50.0):
 
     :param readings: (N, 3) raw readings; their direction is the sensor axis pointing up.
     """
-    from .accuracy import FACE_DIRECTIONS, FACE_NAMES
+    from ..accuracy import FACE_DIRECTIONS, FACE_NAMES
     y = np.asarray(readings, float).reshape(-1, 3)
     u = y / np.maximum(np.linalg.norm(y, axis=1, keepdims=True), 1e-300)
     best = (u @ FACE_DIRECTIONS.T).max(axis=0)
@@ -280,12 +280,6 @@ def calibrate(readings, gravity=9.80665, method='ml', weights=None, temps=None,
     cal.residual_rms = float(np.sqrt(np.mean(gravity_residuals(cal, None, y, gravity,
                                                                temps) ** 2)))
     return cal
-
-
-def default_calibration_path():
-    """Where the nodes keep the calibration (moved to ``dataio.calibration_file``)."""
-    from ..dataio.calibration_file import default_calibration_path as path
-    return path()
 
 
 OUTLIER_FACTOR = 8.0

@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from .errors import CalibrationError
+from ..errors import CalibrationError
 
 
 @dataclass
