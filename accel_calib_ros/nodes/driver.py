@@ -36,8 +36,8 @@ import serial
 
 from .common import declare_parameters, Param, ParameterProblem, run
 from ..dataio.mpu9250_frame import (ACCEL_LSB_PER_G, AsciiLineParser, ClockMapper, Converter,
-                                    FRAME_SIZE, FrameParser, GYRO_LSB_PER_DPS, temp_counts_range,
-                                    TEMP_FORMULAS)
+                                    FRAME_SIZE, FrameParser, GYRO_LSB_PER_DPS,
+                                    temp_counts_range, TEMP_FORMULAS)
 
 NODE_NAME = 'mpu9250_driver'
 QUEUE_DEPTH = 100
