@@ -575,7 +575,7 @@ def sensor_to_dict(sensor, gravity):
 
 
 def cmd_diagnose(args, out):
-    from .core.diagnose import diagnose
+    from .modelgap import diagnose
     if args.report:
         _check_output(os.path.join(args.report, 'report.md'), args.data, what='report')
         if os.path.exists(args.report) and not os.path.isdir(args.report):
@@ -586,7 +586,7 @@ def cmd_diagnose(args, out):
                       threshold_factor=args.threshold_factor,
                       max_weight_s=args.max_weight_s, min_effect_mg=args.min_effect_mg)
     if args.report:
-        from .report import write_report
+        from .modelgap.report import write_report
         write_report(result, args.report)
     if args.json:
         out(result.summary())
@@ -644,13 +644,38 @@ def cmd_allan(args, out):
         _check_suffix(args.plot, ('.png',), 'allan --plot')
     result = allan(_load(args).validate())
     if args.plot:
-        from .report import write_allan_plot
         write_allan_plot(result, args.plot)
     if args.json:
         out(result.summary())
     else:
         print(result.text())
     return 0
+
+
+def write_allan_plot(result, path):
+    """Write a log-log plot of the Allan deviation per axis with its 95 % band (PNG)."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    from .dataio.figures import save_figure
+    groups = [[i for i, a in enumerate(result.axes) if a.startswith('a')],
+              [i for i, a in enumerate(result.axes) if a.startswith('g')]]
+    groups = [g for g in groups if g]
+    fig, axes = plt.subplots(1, len(groups), figsize=(6 * len(groups), 4.2), squeeze=False)
+    for ax, group in zip(axes[0], groups):
+        for i in group:
+            line, = ax.loglog(result.tau, result.adev[i], label=result.axes[i])
+            ax.fill_between(result.tau, result.adev_ci[i, :, 0], result.adev_ci[i, :, 1],
+                            color=line.get_color(), alpha=0.2)
+            ax.loglog(result.tau, result.noise_density[i] / np.sqrt(result.tau), ':',
+                      color=line.get_color(), lw=0.8)
+        unit = 'm/s²' if result.axes[group[0]].startswith('a') else 'rad/s'
+        ax.set_xlabel('cluster time τ, s')
+        ax.set_ylabel(f'Allan deviation, {unit}')
+        ax.grid(True, which='both', alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle('Allan deviation (dotted: white noise N/√τ; band: 95 %)')
+    save_figure(fig, path)
 
 
 def cmd_simulate_device(args, out):

@@ -192,7 +192,7 @@ def plot_drift(cals, path):
     import matplotlib.dates as mdates
     import matplotlib.pyplot as plt
     import numpy as np
-    from .report import save_figure
+    from .dataio.figures import save_figure
     fig, axes = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
     colours = {'x': 'tab:red', 'y': 'tab:green', 'z': 'tab:blue'}
     for sensor in sorted({c['sensor_id'] for c in cals}):

@@ -5,12 +5,12 @@ import pathlib
 import time
 
 from accel_calib_ros.cli import main
-from accel_calib_ros.core.diagnose import diagnose, diagnose_windows, held_out_check
-from accel_calib_ros.core.effects import EFFECTS
 from accel_calib_ros.core.errors import CalibrationError
 from accel_calib_ros.core.simulate import (
     face_directions, G0, mpu9250_like, random_directions, simulate_session,
     simulate_static_windows, with_datasheet_effect)
+from accel_calib_ros.modelgap import diagnose, diagnose_windows, held_out_check
+from accel_calib_ros.modelgap.effects import EFFECTS
 import numpy as np
 import pytest
 
@@ -206,7 +206,7 @@ def test_six_faces_cannot_show_cross_axis_or_quadratic_terms():
 
 
 def test_report_has_a_residual_plot_per_step(tmp_path):
-    from accel_calib_ros.report import write_report
+    from accel_calib_ros.modelgap.report import write_report
     rng = np.random.default_rng(12)
     sensor, baseline = hidden('temperature_bias', rng)
     result = diagnose_windows(windows_of(sensor, rng, hump), baseline, replicates=5)
@@ -219,7 +219,7 @@ def test_report_has_a_residual_plot_per_step(tmp_path):
 
 
 def test_a_new_effect_is_one_class(monkeypatch):
-    from accel_calib_ros.core import effects
+    from accel_calib_ros.modelgap import effects
 
     class TemperatureBias2(effects.PerAxisEffect):
         name = 'temperature_bias_quadratic'
@@ -342,7 +342,7 @@ def test_null_verdict_does_not_depend_on_the_random_draws():
     second = diagnose_windows(windows, 'ml', rng=np.random.default_rng(2), replicates=5)
     assert first.null_limit == second.null_limit and first.explained == second.explained
     # A noise level measured with few degrees of freedom widens the limit.
-    from accel_calib_ros.core.diagnose import null_gap_limit
+    from accel_calib_ros.modelgap.noise import null_gap_limit
     assert null_gap_limit(50, 30) > null_gap_limit(50, 3000) > null_gap_limit(50, np.inf)
 
 

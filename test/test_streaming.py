@@ -208,7 +208,7 @@ def test_light_commands_import_no_heavy_module(tmp_path, argv):
             f'try:\n    main({argv!r})\nexcept SystemExit:\n    pass\n'
             'heavy = ("scipy", "matplotlib", "rosbags", "rich", "tqdm", '
             '"accel_calib_ros.device", "accel_calib_ros.core.simulate", '
-            '"accel_calib_ros.core.diagnose")\n'
+            '"accel_calib_ros.modelgap")\n'
             'print("LOADED", [m for m in heavy if m in sys.modules])\n')
     done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
                           timeout=60)

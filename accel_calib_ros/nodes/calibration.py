@@ -647,7 +647,7 @@ class CalibrationNode(Node):
         Effects the calibration already models (the temperature tables when it has
         usable bands) are not reported as missing.
         """
-        from ..core.diagnose import diagnose_windows
+        from ..modelgap import diagnose_windows
         if not windows:
             return None
         count = np.array([x['count'] for x in windows], int)

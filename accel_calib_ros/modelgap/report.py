@@ -18,19 +18,12 @@ import os
 import matplotlib
 import numpy as np
 
-from .core.effects import G0
-from .dataio.atomic import atomic_path, atomic_write_text
+from .effects import G0
+from ..dataio.atomic import atomic_write_text
+from ..dataio.figures import save_figure
 
 matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402, I100
-
-
-def save_figure(fig, path):
-    """Lay out ``fig``, write it as PNG to ``path`` atomically and close it."""
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=90, format='png')
-    plt.close(fig)
 
 
 def _residual_figure(path, fit, model_label, c, directions):
@@ -42,7 +35,7 @@ def _residual_figure(path, fit, model_label, c, directions):
     Colour:
     the axis nearest vertical; filled when it points up, hollow when down.
     """
-    from .core.diagnose import where_variables
+    from .evidence import where_variables
     r = fit.residuals
     variables = where_variables(c, directions)
     best, best_r = 'temperature', 0.0
@@ -85,7 +78,8 @@ def _probe_figure(path, result):
     (crosses). Direction: the smooth on a longitude/latitude map of the gravity direction.
     Each panel's title gives the probe's p-value (significant below ``PROBE_P``).
     """
-    from .core.diagnose import Model, PROBE_P
+    from .model import Model
+    from .probes import PROBE_P
     probes = result.probes
     if not probes:
         return False
@@ -120,7 +114,7 @@ def _probe_figure(path, result):
 
 def write_report(result, folder):
     """Write the plots and report.md of a DiagnoseResult into ``folder`` (created)."""
-    from .core.diagnose import Model
+    from .model import Model
     os.makedirs(folder, exist_ok=True)
     c = result.conditions
     labels = [result.baseline] + [f'+ {name}' for name in result.missing_effects]
@@ -209,25 +203,3 @@ def write_report(result, folder):
         lines += [f'### Residuals: {label}', '', f'![{label}]({name})', '']
     atomic_write_text(os.path.join(folder, 'report.md'), '\n'.join(lines))
     return os.path.join(folder, 'report.md')
-
-
-def write_allan_plot(result, path):
-    """Write a log-log plot of the Allan deviation per axis with its 95 % band (PNG)."""
-    groups = [[i for i, a in enumerate(result.axes) if a.startswith('a')],
-              [i for i, a in enumerate(result.axes) if a.startswith('g')]]
-    groups = [g for g in groups if g]
-    fig, axes = plt.subplots(1, len(groups), figsize=(6 * len(groups), 4.2), squeeze=False)
-    for ax, group in zip(axes[0], groups):
-        for i in group:
-            line, = ax.loglog(result.tau, result.adev[i], label=result.axes[i])
-            ax.fill_between(result.tau, result.adev_ci[i, :, 0], result.adev_ci[i, :, 1],
-                            color=line.get_color(), alpha=0.2)
-            ax.loglog(result.tau, result.noise_density[i] / np.sqrt(result.tau), ':',
-                      color=line.get_color(), lw=0.8)
-        unit = 'm/s²' if result.axes[group[0]].startswith('a') else 'rad/s'
-        ax.set_xlabel('cluster time τ, s')
-        ax.set_ylabel(f'Allan deviation, {unit}')
-        ax.grid(True, which='both', alpha=0.3)
-        ax.legend(fontsize=8)
-    fig.suptitle('Allan deviation (dotted: white noise N/√τ; band: 95 %)')
-    save_figure(fig, path)

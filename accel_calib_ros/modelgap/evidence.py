@@ -1,0 +1,167 @@
+"""
+How an effect shows in this session: visibility, confounding, size and where.
+
+``visibility`` says whether the poses can show an effect at all, ``column_correlation``
+whether two effects look alike here, ``effect_worst_case_mg`` how large an error an
+effect makes in corrected acceleration, ``where_variables`` and ``strongest_correlations``
+what the residuals follow.
+"""
+
+import numpy as np
+
+from .effects import EFFECTS, G0
+
+
+def where_variables(c, directions):
+    """
+    Return the session variables the residuals are compared with, by name.
+
+    Temperature, time, each signed and absolute component n_i of the gravity direction,
+    products of two components (a cross-axis term T_ij changes |a| by about
+    g n_i n_j T_ij), and temperature and time times each component (an offset that
+    moves with temperature changes |a| by n . c (θ - θ̄): it shows against
+    temperature × x component, hardly against temperature alone).
+
+    :param c: Conditions.
+    :param directions: (N, 3) unit gravity directions of the windows.
+    :returns: dict name -> (N,) values.
+    """
+    out = {'temperature': c.temp, 'time': c.time}
+    for i, axis in enumerate('xyz'):
+        out[f'{axis} component of gravity'] = directions[:, i]
+        out[f'|{axis}| component of gravity'] = np.abs(directions[:, i])
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        out[f'{"xyz"[i]} × {"xyz"[j]} component'] = directions[:, i] * directions[:, j]
+    for i, axis in enumerate('xyz'):
+        out[f'temperature × {axis} component'] = c.temp * directions[:, i]
+        out[f'time × {axis} component'] = c.time * directions[:, i]
+    return out
+
+
+def strongest_correlations(residuals, c, directions, top=3):
+    """Return the strongest correlations of the residuals, [{'variable', 'r'}], strongest first."""
+    out = []
+    for name, values in where_variables(c, directions).items():
+        if np.ptp(values) > 0 and np.ptp(residuals) > 0:
+            r = float(np.corrcoef(residuals, values)[0, 1])
+            out.append({'variable': name, 'r': r})
+    out.sort(key=lambda d: -round(abs(d['r']), 6))     # ties: the order of the variables
+    return out[:top]
+
+
+def column_correlation(model, fit, c, first, second):
+    """
+    Return how alike two candidate effects look in this session (0 to 1).
+
+    The largest canonical correlation between the two effects' Jacobian columns after
+    removing what the current model already absorbs: 1 when some combination of one
+    is indistinguishable from the other (temperature and time rising together).
+    """
+    base = fit.jac if fit.jac is not None else np.zeros((len(c.readings), 0))
+    q_base = np.linalg.qr(base)[0] if base.shape[1] else base
+
+    def basis(name):
+        j = model.effect_jacobian(fit.x, c, name)
+        if q_base.shape[1]:
+            j = j - q_base @ (q_base.T @ j)
+        u, s, _ = np.linalg.svd(j, full_matrices=False)
+        return u[:, s > 1e-9 * max(s.max(), 1e-300)]
+
+    q1, q2 = basis(first), basis(second)
+    if not q1.shape[1] or not q2.shape[1]:
+        return 0.0
+    return float(min(np.linalg.svd(q1.T @ q2, compute_uv=False).max(), 1.0))
+
+
+def visibility(model, fit, c, name):
+    """
+    Return how well this session's poses and conditions can show effect ``name`` (0 to 1).
+
+    For each parameter, the change of the normalised residuals per unit parameter, after
+    removing what the current model absorbs, over the change of the raw reading itself
+    (the residual only sees a change along gravity). The smallest singular value of
+    those scaled columns: 0 when some combination of the effect's parameters is
+    invisible, e.g. cross-axis terms with only the six faces, or a quadratic scale
+    term that is indistinguishable from the linear one when each axis only sees ±g.
+    """
+    j = model.effect_jacobian(fit.x, c, name)
+    a = model.true_accel(fit.x, c)
+    T = model.split(fit.x)[0]
+    # The change of the reading per unit parameter in the true frame (T^-1 columns),
+    # in units of each window's noise.
+    cols = np.einsum('ij,njk->nik', np.linalg.inv(T),
+                     EFFECTS[name].columns(a, c.temp, c.time, c.gravity))
+    _, s = model.residual_parts(fit.x, c)
+    raw = np.linalg.norm(np.linalg.norm(cols, axis=1) / s[:, None], axis=0)
+    if fit.jac is not None and fit.jac.shape[1]:
+        q = np.linalg.qr(fit.jac)[0]
+        j = j - q @ (q.T @ j)
+    raw = np.where(raw > 0, raw, np.inf)
+    return float(np.linalg.svd(j / raw, compute_uv=False).min())
+
+
+def fibonacci_directions(n=200):
+    """Return ``n`` unit vectors spread evenly over the sphere, shape (n, 3)."""
+    k = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * k / n
+    phi = np.pi * (1.0 + 5 ** 0.5) * k
+    r = np.sqrt(1.0 - z ** 2)
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+
+
+def effect_worst_case_mg(model, x, c, name, params):
+    """
+    Return the largest error, mg, effect ``name`` with ``params`` makes in corrected acceleration.
+
+    The error T^-1 columns(a, θ, t) p of the corrected specific force, over every
+    direction of gravity (200 spread over the sphere plus the session's own) and every
+    temperature and time of the session (centred as in the fit, so what the baseline
+    absorbs at the session mean is not counted).
+    """
+    T = model.split(x)[0]
+    a_session = model.true_accel(x, c)
+    dirs = np.vstack([fibonacci_directions(),
+                      a_session / np.linalg.norm(a_session, axis=1, keepdims=True)])
+    conds = np.unique(np.column_stack([c.temp, c.time]), axis=0)
+    if len(conds) > 60:
+        conds = conds[np.linspace(0, len(conds) - 1, 60).round().astype(int)]
+    T_inv = np.linalg.inv(T)
+    worst = 0.0
+    for temp, time in conds:
+        n = len(dirs)
+        cols = EFFECTS[name].columns(c.gravity * dirs, np.full(n, temp), np.full(n, time),
+                                     c.gravity)
+        err = (cols @ np.asarray(params, float)) @ T_inv.T
+        worst = max(worst, float(np.max(np.linalg.norm(err, axis=1))))
+    return 1000.0 * worst / G0
+
+
+def predicted_accuracy_mg(model, fit):
+    """
+    Return the baseline fit's predicted accuracy, mg (``core.accuracy``, spec section 5).
+
+    The covariance (J^T J)^-1 of the baseline parameters (J: Jacobian of the
+    noise-normalised residuals) in the (T upper row-major, bias) order; a ``gn``
+    baseline's diagonal T takes the diagonal places (the rest fixed at zero).
+    """
+    from ..core.accuracy import predicted_accuracy
+    jac = fit.jac[:, :model.n_base]
+    cov = np.linalg.pinv(jac.T @ jac)
+    full = np.zeros((9, 9))
+    index = np.arange(9) if model.baseline == 'ml' else np.array([0, 3, 5, 6, 7, 8])
+    full[np.ix_(index, index)] = cov
+    T = model.split(fit.x)[0]
+    value = predicted_accuracy(T, full, G0)
+    return 1000.0 * value / G0 if np.isfinite(value) else float('nan')
+
+
+def separation_advice(a, b, c):
+    pair = {a, b}
+    if 'bias_drift' in pair and pair & {'temperature_bias', 'temperature_scale'}:
+        r = float(np.corrcoef(c.temp, c.time)[0, 1]) if c.temp_span > 0 else 0.0
+        return (f'temperature and time move together in this session (r = {r:.2f}); hold '
+                'the temperature steady for a while, or let it fall, so the two separate')
+    if pair == {'temperature_bias', 'temperature_scale'}:
+        return ('record poses with each axis both up and down at every temperature, so an '
+                'offset and a scale change look different')
+    return 'record more poses spread over the sphere (each axis up, down and sideways)'

@@ -1,0 +1,107 @@
+"""
+Where the residual lives, without assuming a physical effect.
+
+Smooth nonparametric bases in time, temperature, gravity direction and reading
+magnitude, each tested against the residuals by a nested F-test.
+"""
+
+import numpy as np
+from scipy import stats
+
+from .effects import G0
+
+PROBE_P = 1e-3
+"""A nonparametric probe is significant below this F-test p-value."""
+
+
+def _cosine_basis(values, degree):
+    """
+    Return a smooth basis of ``values`` scaled to u in [0, 1].
+
+    cos(k pi u), k = 1..degree (trends, steps, curves), and sin(2 pi k u),
+    k = 1..(degree + 1) // 2 (cycles), shape (N, degree + (degree + 1) // 2).
+    """
+    span = np.ptp(values)
+    if span <= 0 or degree < 1:
+        return np.zeros((len(values), 0))
+    u = (values - values.min()) / span
+    cols = [np.cos(np.pi * k * u) for k in range(1, degree + 1)]
+    cols += [np.sin(2 * np.pi * k * u) for k in range(1, (degree + 1) // 2 + 1)]
+    return np.column_stack(cols)
+
+
+def _sphere_basis(directions, degree):
+    """Return the monomials x^a y^b z^c, 1 <= a+b+c <= degree (spherical harmonics span)."""
+    cols = []
+    for total in range(1, degree + 1):
+        for i in range(total + 1):
+            for j in range(total + 1 - i):
+                k = total - i - j
+                cols.append(directions[:, 0] ** i * directions[:, 1] ** j
+                            * directions[:, 2] ** k)
+    return np.column_stack(cols)
+
+
+def residual_probes(model, fit, c):
+    """
+    Show where the final residual lives, without assuming a physical effect.
+
+    Four smooth, nonparametric bases are fitted to the noise-normalised residuals, each
+    after removing what the fitted model can already absorb (its Jacobian): a cosine and
+    sine series in time and in temperature (alone and times each gravity-direction component,
+    since an offset o(t) moves |a| by n . o(t)), low-degree spherical harmonics over the
+    gravity direction, and a cosine series in the magnitude of the raw reading |y|. A nested
+    F-test gives each its significance. A probe that is significant while no library
+    effect is says which variable the missing cause follows.
+
+    :returns: dict probe -> {'p', 'F', 'terms', 'rms_mg', 'max_mg', 'significant',
+        '_x' (per-window variable), '_smooth' (per-window fitted values, m/s²)}.
+    """
+    n = len(c.readings)
+    rho, s = model.residual_parts(fit.x, c)
+    r = rho / s
+    a = model.true_accel(fit.x, c)
+    directions = a / np.linalg.norm(a, axis=1, keepdims=True)
+    q = np.linalg.qr(fit.jac)[0] if fit.jac is not None and fit.jac.shape[1] else \
+        np.zeros((n, 0))
+    room = max(fit.dof - 3, 0)
+    smooth_degree = int(min(6, room // 12))
+    sphere_degree = 4 if room >= 40 else 3 if room >= 25 else 2 if room >= 12 else 0
+
+    def offset_and_scale(values):
+        # An offset o(v) changes |a| by n . o(v); a scale change by |a| s(v): the smooth
+        # times each direction component, and alone.
+        basis = _cosine_basis(values, smooth_degree)
+        return np.hstack([basis] + [basis * directions[:, [i]] for i in range(3)])
+
+    bases = {
+        'time': (c.time, offset_and_scale(c.time)),
+        'temperature': (c.temp, offset_and_scale(c.temp)),
+        'direction': (directions, _sphere_basis(directions, sphere_degree)
+                      if sphere_degree else np.zeros((n, 0))),
+        'magnitude': (np.linalg.norm(c.readings, axis=1),
+                      _cosine_basis(np.linalg.norm(c.readings, axis=1), 3)),
+    }
+    out = {}
+    for name, (values, basis) in bases.items():
+        if not basis.shape[1]:
+            continue
+        basis = basis / s[:, None]          # a smooth in m/s², seen in normalised units
+        if q.shape[1]:
+            basis = basis - q @ (q.T @ basis)
+        u, sv, _ = np.linalg.svd(basis, full_matrices=False)
+        u = u[:, sv > 1e-8 * max(sv.max(), 1e-300)]
+        k = u.shape[1]
+        if not k or fit.dof - k < 2:
+            continue
+        proj = u @ (u.T @ r)
+        drop = float(proj @ proj)
+        rest = max(fit.chi2 - drop, 1e-300)
+        F = (drop / k) / (rest / (fit.dof - k))
+        p = float(stats.f.sf(F, k, fit.dof - k))
+        smooth = proj * s
+        out[name] = {'p': p, 'F': float(F), 'terms': int(k), 'delta_chi2': drop,
+                     'rms_mg': float(1000.0 * np.sqrt(np.mean(smooth ** 2)) / G0),
+                     'max_mg': float(1000.0 * np.max(np.abs(smooth)) / G0),
+                     'significant': bool(p < PROBE_P), '_x': values, '_smooth': smooth}
+    return out
