@@ -5,7 +5,7 @@ import time
 
 from accel_calib_ros.core.errors import InputError
 from accel_calib_ros.core.samples import Samples
-from accel_calib_ros.dataio import atomic, recording
+from accel_calib_ros.dataio import atomic, csv_io, rosbag_io
 from accel_calib_ros.dataio.atomic import atomic_path, atomic_write_bytes, atomic_write_text
 from accel_calib_ros.dataio.recording import load_samples, write_bag, write_samples_csv
 import numpy as np
@@ -221,7 +221,7 @@ def test_csv_unreadable_any_user(tmp_path, monkeypatch):
     def denied(*args, **kwargs):
         raise PermissionError(13, 'Permission denied')
 
-    monkeypatch.setattr(recording, 'open', denied, raising=False)
+    monkeypatch.setattr(csv_io, 'open', denied, raising=False)
     bad(path, 'cannot read', 'permission')
     bad(tmp_path, 'metadata.yaml')  # a directory is a bag or nothing
     folder = tmp_path / 'dir.csv'
@@ -378,10 +378,10 @@ def test_bag_messages_are_standard(tmp_path):
 def test_bag_mixed_frame_ids_use_the_general_decoder(tmp_path):
     """Messages of differing layout are decoded one by one, with the same result."""
     raws = [imu_msg(10**9 + i, (float(i), 1.0, 2.0), frame='f' * (i % 11)) for i in range(12)]
-    slow = recording._decode_slow(raws, 'sensor_msgs/msg/Imu')
-    assert recording._decode_fast(raws, 'sensor_msgs/msg/Imu') is None
+    slow = rosbag_io._decode_slow(raws, 'sensor_msgs/msg/Imu')
+    assert rosbag_io._decode_fast(raws, 'sensor_msgs/msg/Imu') is None
     same = [r for r in raws if len(r) == len(raws[0])]
-    fast = recording._decode_fast(same, 'sensor_msgs/msg/Imu')
+    fast = rosbag_io._decode_fast(same, 'sensor_msgs/msg/Imu')
     index = [i for i, r in enumerate(raws) if len(r) == len(raws[0])]
     np.testing.assert_array_equal(fast[0], slow[0][index])
     np.testing.assert_array_equal(fast[1], slow[1][index])

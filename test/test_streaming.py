@@ -115,12 +115,12 @@ def test_output_suffix_is_checked(tmp_path, capsys):
 
 
 def test_apply_streams_and_matches_the_whole_file_correction(tmp_path, capsys, monkeypatch):
-    from accel_calib_ros.dataio import recording
+    from accel_calib_ros.dataio import csv_io, recording
     data, calib, out = tmp_path / 's.csv', tmp_path / 'c.yaml', tmp_path / 'o.csv'
     assert main(['simulate', '-o', str(data), '--poses', '12', '--temp', '20', '30']) == 0
     assert main(['fit', str(data), '-o', str(calib)]) == 0
     capsys.readouterr()
-    monkeypatch.setattr(recording, 'CHUNK_ROWS', 333)   # many pieces
+    monkeypatch.setattr(csv_io, 'CHUNK_ROWS', 333)   # many pieces
     monkeypatch.setattr(recording.iter_samples, '__defaults__',
                         (333,) + recording.iter_samples.__defaults__[1:])
     assert main(['apply', str(calib), str(data), '-o', str(out), '--json']) == 0

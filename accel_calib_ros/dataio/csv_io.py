@@ -1,0 +1,529 @@
+"""
+The spec's CSV (interface section 2): read in blocks, validated, written atomically.
+
+A header row names the columns; required ``t``, ``ax``, ``ay``, ``az``; optional
+``temp`` and ``gx``, ``gy``, ``gz``; other columns are ignored; names are matched
+case-insensitively after stripping spaces. Rows are parsed in blocks of
+``CHUNK_ROWS`` (fast path), and a file that the fast path refuses is read again line
+by line to say which line and which cell are wrong. Cells must be finite and within
+``PLAUSIBLE_LIMIT``; time must increase.
+"""
+
+import contextlib
+import csv
+import itertools
+import os
+import warnings
+
+import numpy as np
+
+from .atomic import atomic_path
+from .formats import GYRO_COLUMNS, listed, MAX_LISTED, one_line, REQUIRED_COLUMNS, STANDARD_COLUMNS
+from ..core.errors import InputError
+from ..core.samples import Samples
+
+
+PLAUSIBLE_LIMIT = {'time t': 1e12, 'acceleration ax, ay, az': 1e6, 'temperature': 1e3,
+                   'gyro gx, gy, gz': 1e6}
+"""Largest magnitude a CSV cell may hold per column group (s, m/s² or counts, °C, rad/s)."""
+
+
+def _open_text(path):
+    """Open a CSV file for reading, turning OS errors into InputError."""
+    if path.is_dir():
+        raise InputError(f'{path}: is a directory, not a CSV file')
+    try:
+        return open(path, encoding='utf-8-sig', newline='')
+    except PermissionError:
+        raise InputError(f'{path}: cannot read the file (permission denied)') from None
+    except OSError as exc:
+        raise InputError(f'{path}: cannot read the file ({exc.strerror or exc})') from None
+
+
+def _is_data_line(line):
+    """Tell whether a CSV line holds data (not blank, not a '#' comment)."""
+    stripped = line.strip()
+    return bool(stripped) and not stripped.startswith('#')
+
+
+def _read_header(f, path):
+    """
+    Read up to and including the header row.
+
+    :return: (column names, lowercased and stripped; 1-based line number of the header).
+    """
+    lineno = 0
+    for line in f:
+        lineno += 1
+        if _is_data_line(line):
+            break
+    else:
+        raise InputError(f'{path}: the file is empty; expected a header row '
+                         f'({", ".join(REQUIRED_COLUMNS)}, ...) and data rows')
+    names = [c.strip().lower() for c in next(csv.reader([line]))]
+    return names, lineno
+
+
+def _looks_numeric(text):
+    """Tell whether a header cell is a number (the file has no header row)."""
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _column_layout(names, path):
+    """
+    Map the spec columns to their positions in the header.
+
+    :return: dict with 't', 'ax', 'ay', 'az' and, when present, 'temp' and 'gx', 'gy', 'gz'.
+    """
+    found = ', '.join(repr(n) for n in names)
+    missing = [c for c in REQUIRED_COLUMNS if c not in names]
+    if missing:
+        if names and all(_looks_numeric(n) for n in names if n):
+            raise InputError(
+                f'{path}: the first line holds numbers, not column names; add a header row '
+                f'naming the columns ({", ".join(REQUIRED_COLUMNS)}, optional temp, gx, gy, gz)')
+        hint = ''
+        if len(names) == 1 and (';' in names[0] or '\t' in names[0]):
+            hint = ' (the file must be comma-separated)'
+        raise InputError(f'{path}: missing required column(s) {", ".join(missing)}; '
+                         f'found columns: {found}{hint}')
+    layout = {}
+    for name in STANDARD_COLUMNS:
+        positions = [i for i, n in enumerate(names) if n == name]
+        if len(positions) > 1:
+            raise InputError(f'{path}: column {name!r} appears {len(positions)} times '
+                             f'in the header (columns {found})')
+        if positions:
+            layout[name] = positions[0]
+    gyro = [c for c in GYRO_COLUMNS if c in layout]
+    if gyro and len(gyro) < 3:
+        missing = [c for c in GYRO_COLUMNS if c not in layout]
+        raise InputError(f'{path}: gyro columns incomplete: found {", ".join(gyro)} but not '
+                         f'{", ".join(missing)}; give all of gx, gy, gz or none')
+    return layout
+
+
+def _data_lines(path, header_lineno, rows):
+    """
+    Translate data-row indexes (0-based, as parsed) into 1-based file line numbers.
+
+    Only called to word an error message, so a second pass over the file is fine.
+    """
+    wanted = sorted({int(r) for r in rows})
+    out = {}
+    with _open_text(path) as f:
+        index = -1
+        k = 0
+        for lineno, line in enumerate(f, start=1):
+            if lineno <= header_lineno or not _is_data_line(line):
+                continue
+            index += 1
+            if index == wanted[k]:
+                out[index] = lineno
+                k += 1
+                if k == len(wanted):
+                    break
+    return [out.get(int(r), int(r) + header_lineno + 1) for r in rows]
+
+
+def _columns(data, used):
+    """
+    Name the columns of a parsed block: views, no copies.
+
+    Besides one (N,) view per column, ``accel`` (and ``gyro``) are (N, 3) views of the
+    three side-by-side columns (the reader parses them in STANDARD_COLUMNS order).
+    """
+    out = {n: data[:, i] for i, n in enumerate(used)}
+    for key, names in (('accel', ('ax', 'ay', 'az')), ('gyro', GYRO_COLUMNS)):
+        if all(n in used for n in names):
+            i = used.index(names[0])
+            if used[i:i + 3] == list(names):
+                out[key] = data[:, i:i + 3]
+    return out
+
+
+def _parse_fast(f, columns):
+    """Parse the selected columns with numpy's C reader; raises ValueError on any bad cell."""
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')  # "input contained no data" for a header-only file
+        return np.loadtxt(f, delimiter=',', usecols=columns, ndmin=2, dtype=float,
+                          comments='#', quotechar='"')
+
+
+def _parse_careful(path, header_lineno, layout, names):
+    """
+    Parse the used columns cell by cell, to find and word the problem the fast path hit.
+
+    Also the place where an entirely empty optional column (``temp``, or all of the gyro
+    columns) is taken to mean "not recorded".
+
+    :return: dict column name -> float array, for the columns kept.
+    """
+    used = list(layout)
+    cells = {name: [] for name in used}
+    lines = []
+    with _open_text(path) as f:
+        try:
+            for lineno, row in enumerate(csv.reader(f), start=1):
+                if lineno <= header_lineno:
+                    continue
+                if not row or not _is_data_line(','.join(row)):
+                    continue
+                needed = max(layout[n] for n in used) + 1
+                if len(row) < needed:
+                    short = [n for n in used if layout[n] >= len(row)]
+                    raise InputError(
+                        f'{path}, line {lineno}: {len(row)} fields but the header names '
+                        f'{len(names)} columns (no value for {", ".join(short)})')
+                lines.append(lineno)
+                for name in used:
+                    cells[name].append(row[layout[name]].strip())
+        except csv.Error as exc:
+            raise InputError(f'{path}: malformed CSV ({one_line(exc)})') from None
+    empty = {n: [i for i, v in enumerate(cells[n]) if v == ''] for n in used}
+    n_rows = len(lines)
+    optional_groups = [('temp',), GYRO_COLUMNS]
+    for group in optional_groups:
+        if all(n in layout for n in group) and all(len(empty[n]) == n_rows for n in group):
+            for n in group:  # column present but never filled: not recorded
+                del cells[n]
+                del empty[n]
+    for name, rows in empty.items():
+        if rows:
+            where = listed(lines[i] for i in rows)
+            what = 'temperature' if name == 'temp' else f'column {name!r}'
+            raise InputError(f'{path}: {what} is empty on line(s) {where}; fill every row '
+                             f'or leave the whole column empty')
+    out = {}
+    for name, values in cells.items():
+        try:
+            out[name] = np.array(values, dtype=float)
+        except ValueError:
+            for i, v in enumerate(values):
+                try:
+                    float(v)
+                except ValueError:
+                    raise InputError(f'{path}, line {lines[i]}: column {name!r} holds '
+                                     f'{v!r}, not a number') from None
+            raise  # pragma: no cover - numpy and float() disagree
+    return out, np.asarray(lines)
+
+
+CHUNK_ROWS = 1 << 17
+"""CSV rows parsed at a time: reading holds one such block beyond the result."""
+
+
+def _parse_chunks(f, columns, chunk_rows=CHUNK_ROWS):
+    """Yield blocks (rows, len(columns)) of the CSV data lines of ``f``, parsed by numpy."""
+    while True:
+        lines = list(itertools.islice(f, chunk_rows))
+        if not lines:
+            return
+        block = _parse_fast(lines, columns)
+        if block.size:
+            yield block, sum(map(len, lines))
+
+
+def _parse_all(f, columns, size_bytes, on_read=None):
+    """
+    Parse every data line of ``f`` into one (N, len(columns)) array, block by block.
+
+    The array is allocated once from the file size and the bytes per row of the first
+    block (grown if that guess falls short), so the peak resident memory is about the
+    result plus one block, not the several copies a whole-file parse makes.
+    """
+    data, n = None, 0
+    for block, nbytes in _parse_chunks(f, columns):
+        if on_read is not None:
+            on_read(nbytes)
+        if data is None:
+            # Generous: pages never written are never resident, so over-guessing is free.
+            guess = int(size_bytes / max(nbytes / len(block), 1.0) * 1.25) + len(block)
+            data = np.empty((max(guess, len(block)), len(columns)))
+        if n + len(block) > len(data):
+            grown = np.empty((int((n + len(block)) * 1.25), len(columns)))
+            grown[:n] = data[:n]
+            data = grown
+        data[n:n + len(block)] = block
+        n += len(block)
+    if data is None:
+        return np.empty((0, len(columns)))
+    return data[:n]
+
+
+def _open_csv(path):
+    """Open the CSV, read its header; return (file, names, header line number, layout)."""
+    f = _open_text(path)
+    try:
+        names, header_lineno = _read_header(f, path)
+        layout = _column_layout(names, path)
+    except BaseException:
+        f.close()
+        raise
+    return f, names, header_lineno, layout
+
+
+def load_csv(path, on_read=None):
+    """Read the spec CSV into (unvalidated but checked) Samples."""
+    try:
+        f, names, header_lineno, layout = _open_csv(path)
+        with f:
+            used = list(layout)
+            try:
+                data = _parse_all(f, [layout[n] for n in used], os.fstat(f.fileno()).st_size,
+                                  on_read)
+                # Views into the one array: no copies of a big file.
+                columns = _columns(data, used) if data.size else {}
+                lines = None
+            except ValueError:
+                columns = None
+        if columns is None:
+            columns, lines = _parse_careful(path, header_lineno, layout, names)
+    except UnicodeDecodeError:
+        raise InputError(f'{path}: not a text CSV file (it is not UTF-8 text)') from None
+    except OSError as exc:
+        raise InputError(f'{path}: cannot read the file ({exc.strerror or exc})') from None
+    return _checked_samples(path, columns, lines, header_lineno)
+
+
+def iter_csv(path, chunk_rows, on_read=None):
+    """Yield checked Samples pieces of a CSV file, ``chunk_rows`` data lines at a time."""
+    try:
+        f, names, header_lineno, layout = _open_csv(path)
+        with f:
+            used = list(layout)
+            offset, t_before, columns = 0, None, {}    # {}: no block at all (header only)
+            try:
+                for block, nbytes in _parse_chunks(f, [layout[n] for n in used], chunk_rows):
+                    if on_read is not None:
+                        on_read(nbytes)
+                    columns = _columns(block, used)
+                    piece = _checked_samples(path, columns, None, header_lineno, offset,
+                                             t_before)
+                    offset += len(piece)
+                    t_before = piece.t[-1]
+                    yield piece
+            except ValueError:
+                if offset:      # a bad cell past the first block: word it, from the start
+                    _parse_careful(path, header_lineno, layout, names)
+                columns = None
+            if offset == 0 and columns is not None:
+                raise InputError(f'{path}: the file has a header row but no data rows')
+        if columns is None:   # the careful parse decides (e.g. an all-empty temp column)
+            columns, lines = _parse_careful(path, header_lineno, layout, names)
+            whole = _checked_samples(path, columns, lines, header_lineno)
+            for a in range(0, len(whole), chunk_rows):
+                yield whole.subset(slice(a, a + chunk_rows))
+    except UnicodeDecodeError:
+        raise InputError(f'{path}: not a text CSV file (it is not UTF-8 text)') from None
+    except OSError as exc:
+        raise InputError(f'{path}: cannot read the file ({exc.strerror or exc})') from None
+
+
+def _checked_samples(path, columns, lines, header_lineno, row_offset=0, t_before=None):
+    """
+    Check parsed CSV columns (finite values, time order) and return them as Samples.
+
+    :param columns: dict column name -> (N,) array, as parsed.
+    :param lines: (N,) file line numbers of the rows, or None (found again when needed).
+    :param row_offset: data rows before these ones (a piece of a file read in pieces).
+    :param t_before: time of the row just before these ones, s, or None.
+    """
+    if not columns or len(columns['t']) == 0:
+        raise InputError(f'{path}: the file has a header row but no data rows')
+
+    def line_numbers(rows):
+        if lines is not None:
+            return [int(lines[r]) for r in rows]
+        return _data_lines(path, header_lineno, [int(r) + row_offset for r in rows])
+
+    t = columns['t']
+    if t_before is not None and t[0] < t_before:
+        line = line_numbers([0])[0]
+        raise InputError(f'{path}, line {line}: time goes backwards (t={t[0]:.9g} s after '
+                         f'{t_before:.9g} s); rows must be in increasing time order')
+    accel = columns.get('accel')
+    if accel is None:
+        accel = np.column_stack([columns['ax'], columns['ay'], columns['az']])
+    temp = columns.get('temp')
+    gyro = None
+    if all(n in columns for n in GYRO_COLUMNS):
+        gyro = columns.get('gyro')
+        if gyro is None:
+            gyro = np.column_stack([columns[n] for n in GYRO_COLUMNS])
+    checks = [('time t', t), ('acceleration ax, ay, az', accel)]
+    if temp is not None:
+        checks.append(('temperature', temp))
+    if gyro is not None:
+        checks.append(('gyro gx, gy, gz', gyro))
+    for what, values in checks:
+        with np.errstate(invalid='ignore'):
+            finite = np.isfinite(values) & (np.abs(values) <= PLAUSIBLE_LIMIT[what])
+        bad = np.nonzero(~(finite if finite.ndim == 1 else finite.all(axis=1)))[0]
+        if bad.size:
+            where = listed(line_numbers(bad[:MAX_LISTED]) + ['x'] * (bad.size - MAX_LISTED))
+            raise InputError(f'{path}: NaN or infinite (or beyond {PLAUSIBLE_LIMIT[what]:g}) '
+                             f'{what} on {bad.size} row(s), line(s) '
+                             f'{where}; clean or drop those rows')
+    back = np.nonzero(np.diff(t) < 0)[0]
+    if back.size:
+        i = int(back[0]) + 1
+        line = line_numbers([i])[0]
+        raise InputError(
+            f'{path}, line {line}: time goes backwards (t={t[i]:.9g} s after {t[i - 1]:.9g} s; '
+            f'{back.size} such step(s)); rows must be in increasing time order')
+    return Samples(t, accel, temp, gyro)
+
+
+def _check_extra(extra, n):
+    """Validate extra CSV columns: name -> (N,) array, names new and CSV-safe."""
+    out = []
+    seen = set(STANDARD_COLUMNS)
+    for name, values in (extra or {}).items():
+        key = str(name).strip().lower()
+        if not key or any(ch in str(name) for ch in ',"\r\n'):
+            raise InputError(f'extra column name {name!r} is not usable in a CSV header')
+        if key in seen:
+            raise InputError(f'extra column {name!r} clashes with another column')
+        seen.add(key)
+        values = np.asarray(values, dtype=float).reshape(-1)
+        if len(values) != n:
+            raise InputError(f'extra column {name!r} has {len(values)} values for {n} samples')
+        out.append((str(name).strip(), values))
+    return out
+
+
+def _csv_names(has_temp, has_gyro, extra_names=()):
+    """Return the CSV header names for samples with/without temp and gyro, plus extras."""
+    names = list(REQUIRED_COLUMNS)
+    if has_temp:
+        names.append('temp')
+    if has_gyro:
+        names.extend(GYRO_COLUMNS)
+    return names + list(extra_names)
+
+
+def _csv_block(samples, extra_values, width):
+    """Format Samples (plus extra columns) as CSV text lines, ``%.9f`` t, ``%.9g`` others."""
+    n = len(samples)
+    data = np.empty((n, width))
+    data[:, 0] = samples.t
+    data[:, 1:4] = samples.accel
+    col = 4
+    if samples.temp is not None:
+        data[:, col] = samples.temp
+        col += 1
+    if samples.gyro is not None:
+        data[:, col:col + 3] = samples.gyro
+        col += 3
+    for values in extra_values:
+        data[:, col] = values
+        col += 1
+    row = '%.9f' + ',%.9g' * (width - 1) + '\n'
+    return (row * n) % tuple(data.ravel().tolist())  # one C-level pass: faster than savetxt
+
+
+class CsvWriter:
+    """
+    The spec CSV written piece by piece into a temporary file, then renamed into place.
+
+    Use ``csv_writer(path, ...)``; each ``write`` appends rows. Memory stays bounded
+    by the pieces given, whatever the length of the file.
+    """
+
+    BLOCK_ROWS = 1 << 15
+    """Rows formatted at a time (the formatting holds Python floats for a block)."""
+
+    def __init__(self, f, has_temp, has_gyro, extra_names):
+        self._f = f
+        self.has_temp = has_temp
+        self.has_gyro = has_gyro
+        self.extra_names = list(extra_names)
+        self.names = _csv_names(has_temp, has_gyro, self.extra_names)
+        self.rows = 0
+        f.write(','.join(self.names) + '\n')
+
+    def write(self, samples, extra=None):
+        """
+        Append samples (and their extra columns) to the file.
+
+        :param samples: Samples with temp/gyro present exactly when the header has them.
+        :param extra: dict name -> (N,) array, the same names as given to ``csv_writer``.
+        :raises InputError: the samples or extra columns do not fit the header.
+        """
+        if (samples.temp is not None) != self.has_temp or \
+                (samples.gyro is not None) != self.has_gyro:
+            raise InputError('samples written to one CSV must all have (or lack) temp and gyro')
+        checked = _check_extra(extra, len(samples))
+        if [name for name, _ in checked] != self.extra_names:
+            raise InputError(f'extra columns {[n for n, _ in checked]} differ from those '
+                             f'of the header {self.extra_names}')
+        for a in range(0, len(samples), self.BLOCK_ROWS):
+            part = slice(a, a + self.BLOCK_ROWS)
+            self._f.write(_csv_block(samples.subset(part), [v[part] for _, v in checked],
+                                     len(self.names)))
+        self.rows += len(samples)
+
+
+@contextlib.contextmanager
+def csv_writer(path, has_temp=False, has_gyro=False, extra_names=()):
+    """
+    Open the spec CSV ``path`` for writing in pieces, atomically.
+
+    The rows go to a temporary file next to ``path``; it replaces ``path`` only when the
+    ``with`` block ends normally. On any exception (Ctrl-C included) it is removed and
+    an existing ``path`` stays as it was.
+
+    :param path: the CSV file to create or replace.
+    :param has_temp: the file has a ``temp`` column.
+    :param has_gyro: the file has ``gx, gy, gz`` columns.
+    :param extra_names: names of extra columns after the standard ones.
+    :return: context manager yielding a ``CsvWriter``.
+    :raises InputError: the file cannot be written.
+    """
+    _check_extra({name: np.zeros(0) for name in extra_names}, 0)
+    try:
+        with atomic_path(path) as tmp:
+            with open(tmp, 'w', encoding='utf-8', newline='') as f:
+                yield CsvWriter(f, has_temp, has_gyro, extra_names)
+    except OSError as exc:
+        raise InputError(f'{path}: cannot write ({exc.strerror or one_line(exc)})') from None
+
+
+def write_samples_csv(path, samples, extra=None):
+    """
+    Write samples as the spec CSV, atomically.
+
+    Columns: ``t, ax, ay, az``, then ``temp`` and ``gx, gy, gz`` when present, then the
+    ``extra`` columns in the dict's order. Times are written with nanosecond resolution
+    (``%.9f``, so absolute ROS times keep their fraction), other values with ``%.9g``.
+
+    :param path: the CSV file to create or replace.
+    :param samples: the Samples to write, or an iterable of Samples pieces (written in
+        turn, in bounded memory; every piece with the same optional columns).
+    :param extra: optional dict column name -> (N,) array of extra columns (one Samples
+        only).
+    :return: the number of rows written.
+    :raises InputError: an extra column is misnamed or of the wrong length, or the file
+        cannot be written.
+    """
+    if isinstance(samples, Samples):
+        checked = _check_extra(extra, len(samples))
+        pieces = iter(())
+        first = samples
+    else:
+        checked = []
+        pieces = iter(samples)
+        first = next(pieces, None)
+        if first is None:
+            first = Samples(np.zeros(0), np.zeros((0, 3)))
+    with csv_writer(path, first.temp is not None, first.gyro is not None,
+                    [name for name, _ in checked]) as writer:
+        writer.write(first, dict(checked) if checked else None)
+        for piece in pieces:
+            writer.write(piece)
+    return writer.rows
