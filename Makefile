@@ -47,7 +47,7 @@ $(NOBLE_STAMP): setup.py requirements.txt requirements-dev.txt constraints-noble
 	touch $(NOBLE_STAMP)
 
 demo: $(STAMP)
-	$(BIN)/python -m accel_calib_ros.demo
+	$(BIN)/python -m accel_calib_ros.sim.demo
 
 # Firmware for the Arduino Uno (apt packages installed when missing; see docs/firmware.md).
 firmware:
@@ -57,7 +57,7 @@ firmware:
 # The demo on the emulated board: firmware ELF on simavr + emulated MPU-9250 -> driver.
 demo-board: $(STAMP) firmware
 	@sh firmware/tools/ensure-toolchain.sh hil
-	$(BIN)/python -m accel_calib_ros.demo --board
+	$(BIN)/python -m accel_calib_ros.sim.demo --board
 
 # The terminal test of "accel-calib guide" drives it in tmux (apt; it skips without).
 tmux:

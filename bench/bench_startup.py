@@ -19,7 +19,7 @@ import sys
 import tempfile
 import time
 
-HEAVY = ('scipy', 'matplotlib', 'rosbags', 'rich', 'tqdm', 'accel_calib_ros.device',
+HEAVY = ('scipy', 'matplotlib', 'rosbags', 'rich', 'tqdm', 'accel_calib_ros.sim.device',
          'accel_calib_ros.core.simulate', 'accel_calib_ros.modelgap')
 
 PROBE = ('import runpy, sys; sys.argv = {argv!r}; '

@@ -101,7 +101,7 @@ def wait_exit(proc, timeout):
 
 def start_device(args=(), timeout=15.0, log_dir=None, env=None):
     """
-    Start the virtual MPU9250 (``python -m accel_calib_ros.device *args``).
+    Start the virtual MPU9250 (``python -m accel_calib_ros.sim.device *args``).
 
     :param args: device options (e.g. ``['--link', path, '--corrupt', '0.02']``).
     :param timeout: seconds to wait for it to print its pty path.
@@ -109,7 +109,7 @@ def start_device(args=(), timeout=15.0, log_dir=None, env=None):
     :raises RuntimeError: it exited or printed nothing in time (the log is in the message).
     """
     log, path = _log_file('device-', log_dir)
-    cmd = [sys.executable, '-m', 'accel_calib_ros.device'] + [str(a) for a in args]
+    cmd = [sys.executable, '-m', 'accel_calib_ros.sim.device'] + [str(a) for a in args]
     with log:
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=log, env=env,
                                 stdin=subprocess.DEVNULL)

@@ -1,7 +1,7 @@
 """
 The mpu9250_driver node as a subprocess, on real rclpy over DDS.
 
-The virtual MPU9250 (``accel_calib_ros.device``) streams on a pty behind a symlink;
+The virtual MPU9250 (``accel_calib_ros.sim.device``) streams on a pty behind a symlink;
 the driver reads it; an in-process Collector checks what reaches the graph.
 """
 

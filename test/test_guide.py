@@ -4,10 +4,12 @@ import os
 import time
 
 from accel_calib_ros.cli import main
+from accel_calib_ros.cli.guide import board_drawing
+from accel_calib_ros.cli.guide_session import GuideSession
+from accel_calib_ros.cli.guide_sources import SerialSource
 from accel_calib_ros.core.advice import CANDIDATE_POSES
 from accel_calib_ros.core.simulate import mpu9250_like, simulate_session
 from accel_calib_ros.dataio.mpu9250_frame import encode_frame
-from accel_calib_ros.guide import board_drawing, GuideSession, SerialSource
 import numpy as np
 import pytest
 
@@ -85,9 +87,9 @@ def test_guide_bad_usage_is_one_line_and_exit_2(tmp_path, capsys, monkeypatch, a
 
 def test_ros_source_receives_imu_and_temperature_from_topics():
     rclpy = pytest.importorskip('rclpy')
+    from accel_calib_ros.cli.guide_sources import RosSource
     from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import Imu, Temperature
-    from accel_calib_ros.guide import RosSource
     source = RosSource('guide_test/imu', 'guide_test/temperature')
     ctx = rclpy.Context()
     rclpy.init(context=ctx)

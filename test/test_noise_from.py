@@ -3,10 +3,10 @@
 import argparse
 import json
 
-from accel_calib_ros import device
 from accel_calib_ros.cli import main
 from accel_calib_ros.core.simulate import iter_session, SensorModel
 from accel_calib_ros.dataio.recording import write_samples_csv
+from accel_calib_ros.sim import device
 import numpy as np
 import pytest
 

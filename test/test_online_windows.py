@@ -1,4 +1,4 @@
-"""The streaming static-window detector against the offline one (core/windows.py)."""
+"""The streaming static-window detector against the offline one (core/windows/)."""
 
 from accel_calib_ros.core.simulate import mpu9250_like, random_directions, simulate_session
 from accel_calib_ros.core.windows import (DEFAULTS, detect_static_windows,

@@ -8,8 +8,7 @@ import subprocess
 import sys
 import time
 
-from accel_calib_ros import progress
-from accel_calib_ros.cli import main
+from accel_calib_ros.cli import main, progress
 from accel_calib_ros.core import simulate as sim
 from accel_calib_ros.core.errors import InputError
 from accel_calib_ros.core.samples import Samples
@@ -207,7 +206,7 @@ def test_light_commands_import_no_heavy_module(tmp_path, argv):
     code = ('import sys\nfrom accel_calib_ros.cli import main\n'
             f'try:\n    main({argv!r})\nexcept SystemExit:\n    pass\n'
             'heavy = ("scipy", "matplotlib", "rosbags", "rich", "tqdm", '
-            '"accel_calib_ros.device", "accel_calib_ros.core.simulate", '
+            '"accel_calib_ros.sim.device", "accel_calib_ros.core.simulate", '
             '"accel_calib_ros.modelgap")\n'
             'print("LOADED", [m for m in heavy if m in sys.modules])\n')
     done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,

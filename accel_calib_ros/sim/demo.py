@@ -1,5 +1,5 @@
 """
-End-to-end demo on a simulated sensor: ``python -m accel_calib_ros.demo``.
+End-to-end demo on a simulated sensor: ``python -m accel_calib_ros.sim.demo``.
 
 A virtual MPU9250 streams the spec's serial frames on a pseudo-terminal (with a
 little byte corruption), and the three nodes run as separate processes on real
@@ -201,7 +201,7 @@ def run_ros_demo(args):
             procs.append(subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env,
                                           start_new_session=True))
         else:
-            procs.append(_start(['accel_calib_ros.device', '--link', link, '--poses', 'random',
+            procs.append(_start(['accel_calib_ros.sim.device', '--link', link, '--poses', 'random',
                                  '--count', str(total), '--hold', str(args.hold), '--move',
                                  str(args.move), '--rate', str(args.rate), '--seed',
                                  str(args.seed), '--truth-out', truth_path, '--corrupt',
@@ -275,9 +275,9 @@ def _report(client, truth_path):
 
 def run_offline_demo(args):
     """Without ROS: simulate a session, fit it with both methods, show the correction."""
-    from .core.accel.calibration import calibrate
-    from .core.simulate import mpu9250_like, random_directions, simulate_session
-    from .core.windows import detect_static_windows
+    from ..core.accel.calibration import calibrate
+    from ..core.simulate import mpu9250_like, random_directions, simulate_session
+    from ..core.windows import detect_static_windows
     rng = np.random.default_rng(args.seed)
     sensor = mpu9250_like(rng)
     session = simulate_session(sensor, random_directions(args.poses, rng), rng,

@@ -20,8 +20,8 @@ import tty
 
 import numpy as np
 
-from .dataio.mpu9250_frame import (ACCEL_LSB_PER_G, Converter, encode_ascii_line, encode_frame,
-                                   FRAME_SIZE, GYRO_LSB_PER_DPS)
+from ..dataio.mpu9250_frame import (ACCEL_LSB_PER_G, Converter, encode_ascii_line, encode_frame,
+                                    FRAME_SIZE, GYRO_LSB_PER_DPS)
 
 CHUNK_S = 10.0
 """Seconds of samples simulated at a time once the script has ended."""
@@ -118,7 +118,7 @@ def add_arguments(parser):
 
 
 def _directions(args, rng):
-    from .core.simulate import face_directions, random_directions
+    from ..core.simulate import face_directions, random_directions
     if args.poses == 'faces':
         faces = face_directions()
         count = args.count or 6
@@ -165,7 +165,7 @@ class VirtualSensor:
     """
 
     def __init__(self, args):
-        from .core.simulate import mpu9250_like
+        from ..core.simulate import mpu9250_like
         self.rng = np.random.default_rng(args.seed)
         effects = [e for e in args.effects.split(',') if e]
         for name in effects:
@@ -173,8 +173,8 @@ class VirtualSensor:
                 raise DeviceError(f'unknown effect {name!r}: use {", ".join(EFFECTS)}')
         self.sensor = mpu9250_like(self.rng, rate_hz=args.rate, effects=effects)
         if getattr(args, 'noise_from', None):
-            from .core.errors import InputError
-            from .dataio.noise_file import noise_from_allan
+            from ..core.errors import InputError
+            from ..dataio.noise_file import noise_from_allan
             try:
                 self.sensor.noise_std, gyro = noise_from_allan(args.noise_from, args.rate)
             except InputError as err:
@@ -207,7 +207,7 @@ class VirtualSensor:
 
     def _script(self):
         """Return the scripted session as a generator of (n, 7) count blocks."""
-        from .core.simulate import iter_session
+        from ..core.simulate import iter_session
         a = self.args
         temperature = tuple(a.temp_ramp) if a.temp_ramp else a.temp
         # In pieces of CHUNK_S: a long --hold never builds the whole session in memory
@@ -476,8 +476,8 @@ def _write_truth(path, truth):
 
 
 def main(argv=None):
-    """Command-line entry point (``python -m accel_calib_ros.device``)."""
-    parser = argparse.ArgumentParser(prog='python -m accel_calib_ros.device',
+    """Command-line entry point (``python -m accel_calib_ros.sim.device``)."""
+    parser = argparse.ArgumentParser(prog='python -m accel_calib_ros.sim.device',
                                      description=__doc__.strip().splitlines()[0])
     add_arguments(parser)
     return run(parser.parse_args(argv))

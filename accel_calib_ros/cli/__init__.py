@@ -1,0 +1,113 @@
+"""
+``accel-calib``: the calibration science offline, on CSV or rosbag2 recordings.
+
+One module per command (``fit``, ``apply``, ``simulate``, ``diagnose``, ``allan``,
+``advise``, ``guide``, ``history``, ``simulate_device``), each with ``add_arguments(p)``
+and ``run(args, out)``; ``common`` holds what they share. Only the module of the
+command that runs is imported, so a command pays only for its own imports.
+
+Exit status: 0 success, 2 bad usage or bad input, 1 a calibration that cannot be
+solved. Human summary on stdout by default, exactly one JSON object with --json;
+diagnostics on stderr; never a traceback for a user mistake.
+"""
+
+import importlib
+import json
+import os
+import sys
+
+from .common import check_not_empty, Parser, plain, UsageError
+
+COMMANDS = {
+    'fit': ('fit', 'fit a calibration to a recording'),
+    'apply': ('apply', 'correct a recording with a calibration file'),
+    'simulate': ('simulate', 'simulate a calibration session of an MPU9250'),
+    'diagnose': ('diagnose', 'find the physical effect the model is missing'),
+    'allan': ('allan', 'Allan deviation of a still recording (noise terms)'),
+    'simulate-device': ('simulate_device',
+                        'stream MPU9250 serial frames of a virtual sensor on a pty'),
+    'advise': ('advise', 'which pose to hold next, and when it is enough'),
+    'guide': ('guide', 'live guided calibration in the terminal'),
+    'history': ('history', 'list calibrations per sensor and plot their drift'),
+}
+"""Command name: (module in this package, one-line help)."""
+
+
+def command_module(name):
+    """Import and return the module of command ``name``."""
+    return importlib.import_module(f'.{COMMANDS[name][0]}', __name__)
+
+
+def build_parser(command=None):
+    """
+    Build the argparse parser of ``accel-calib``.
+
+    :param command: the command about to run: only its module is imported and only its
+        options are added (None: every command's, e.g. for documentation).
+    """
+    parser = Parser(prog='accel-calib', description='the calibration science offline, on '
+                    'CSV or rosbag2 recordings')
+    sub = parser.add_subparsers(dest='command', required=True, parser_class=Parser)
+    for name, (_, text) in COMMANDS.items():
+        p = sub.add_parser(name, help=text, description=text)
+        if command is None or name == command:
+            command_module(name).add_arguments(p)
+    return parser
+
+
+def main(argv=None):
+    """Entry point of the ``accel-calib`` console script; returns the exit status."""
+    import warnings
+    with warnings.catch_warnings():
+        if not os.environ.get('ACCEL_CALIB_DEBUG'):    # numpy's 0/0 notes are not for users
+            warnings.simplefilter('ignore', RuntimeWarning)
+        return _main(argv)
+
+
+def _main(argv):
+    from ..core.errors import CalibrationError, InputError
+    printed = []
+
+    def out(obj):
+        print(json.dumps(plain(obj), allow_nan=False))
+        printed.append(True)
+
+    args = None
+    try:
+        argv = sys.argv[1:] if argv is None else list(argv)
+        command = argv[0] if argv and argv[0] in COMMANDS else None
+        args = build_parser(command or '').parse_args(argv)
+        check_not_empty(args)
+        return command_module(args.command).run(args, out)
+    except UsageError as err:
+        print(f'{err}', file=sys.stderr)
+        return 2
+    except InputError as err:
+        print(f'accel-calib: error: {err}', file=sys.stderr)
+        return 2
+    except CalibrationError as err:
+        if getattr(args, 'json', False) and not printed:   # --json: still one object
+            out({'command': args.command, 'accepted': False, 'refusal': str(err)})
+        print(f'accel-calib: cannot calibrate: {err}', file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print('accel-calib: interrupted (partial output removed)', file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        return 0
+    except OSError as err:
+        print(f'accel-calib: error: {err.strerror or err}: {err.filename or ""}'.rstrip(': '),
+              file=sys.stderr)
+        return 2
+    except SystemExit as err:   # argparse --help
+        return err.code if isinstance(err.code, int) else 0
+    except Exception as err:    # noqa: B902 - a bug must still not dump a traceback on users
+        if os.environ.get('ACCEL_CALIB_DEBUG'):
+            raise
+        print(f'accel-calib: internal error: {type(err).__name__}: {err} '
+              '(set ACCEL_CALIB_DEBUG=1 for the traceback)', file=sys.stderr)
+        return 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,80 @@
+"""``accel-calib apply``: correct a recording with a calibration file, streamed."""
+
+import itertools
+import os
+import sys
+
+import numpy as np
+
+from .common import add_data_args, check_output, check_suffix
+from ..core.errors import InputError
+from ..core.samples import Samples
+
+
+def add_arguments(p):
+    """Add the options of ``apply`` to its parser."""
+    p.add_argument('calibration', help='calibration YAML from "accel-calib fit"')
+    add_data_args(p)
+    p.add_argument('-o', '--output', required=True, help='corrected CSV to write')
+    p.add_argument('--json', action='store_true', help='print one JSON object')
+
+
+def run(args, out):
+    """Run ``accel-calib apply``; return the exit status."""
+    check_output(args.output, args.calibration, args.data)
+    from ..dataio.calibration_file import load_calibration
+    from ..dataio.recording import csv_writer, iter_samples
+    from .progress import Progress
+    check_suffix(args.output, ('.csv',), 'apply -o')
+    cal = load_calibration(args.calibration)
+    is_csv = args.data.lower().endswith('.csv') and os.path.isfile(args.data)
+    # Streamed: one piece of the recording in memory at a time, whatever its length.
+    with Progress(os.path.getsize(args.data) if is_csv else None, 'apply',
+                  'B' if is_csv else 'rows') as bar:
+        pieces = iter_samples(args.data, imu_topic=args.imu_topic, temp_topic=args.temp_topic,
+                              on_read=bar.update if is_csv else None)
+        first = next(pieces)
+        if cal.thermal is not None and cal.thermal.usable and first.temp is None:
+            print('accel-calib: warning: calibration has temperature tables but the data '
+                  'have no temperature; applying without drift correction', file=sys.stderr)
+        n, outside, sum_before, sum_after = 0, 0, 0.0, 0.0
+        gyro_subtracted = first.gyro is not None and cal.gyro_bias is not None
+        with csv_writer(args.output, first.temp is not None, first.gyro is not None) as w:
+            for samples in itertools.chain([first], pieces):
+                if cal.temperature_range_c is not None and samples.temp is not None:
+                    lo, hi = cal.temperature_range_c
+                    outside += int(np.sum((samples.temp < lo - 1.0) | (samples.temp > hi + 1.0)))
+                with np.errstate(all='ignore'):
+                    corrected = cal.correct(samples.accel, samples.temp)
+                    gyro = samples.gyro
+                    if gyro is not None:
+                        gyro = cal.correct_gyro(gyro, samples.temp)
+                bad = ~np.all(np.isfinite(corrected), axis=1)
+                if gyro is not None:
+                    bad |= ~np.all(np.isfinite(gyro), axis=1)
+                if bad.any():       # the atomic writer removes what was written so far
+                    raise InputError(
+                        f'{int(bad.sum())} rows would be non-finite after correction (first '
+                        f't={samples.t[np.argmax(bad)]:.3f} s): the data or the calibration '
+                        'are out of range; nothing written')
+                w.write(Samples(samples.t, corrected, samples.temp, gyro))
+                n += len(samples)
+                sum_before += float(np.linalg.norm(samples.accel, axis=1).sum())
+                sum_after += float(np.linalg.norm(corrected, axis=1).sum())
+                if not is_csv:
+                    bar.update(len(samples))
+    if outside:
+        lo, hi = cal.temperature_range_c
+        print(f'accel-calib: warning: {outside} samples lie outside the calibrated '
+              f'temperature range {lo:.1f} .. {hi:.1f} °C', file=sys.stderr)
+    summary = {'output': args.output, 'samples': n, 'calibration': args.calibration,
+               'mean_norm_before': sum_before / n, 'mean_norm_after': sum_after / n,
+               'gyro_bias_subtracted': gyro_subtracted,
+               'samples_outside_temperature_range': outside}
+    if args.json:
+        out(summary)
+    else:
+        print(f'corrected {n} samples -> {args.output} '
+              f'(mean |a| {sum_before / n:.4f} -> {sum_after / n:.4f} m/s²'
+              + (', gyro bias subtracted' if gyro_subtracted else '') + ')')
+    return 0

@@ -1,0 +1,295 @@
+"""``accel-calib fit``: a calibration from a recording's static windows (or its samples)."""
+
+import math
+import os
+import sys
+import time
+
+import numpy as np
+
+from .common import (add_data_args, add_window_args, check_output, G0, GRAVITY, load_data,
+                     ranged, same_file, UsageError)
+from ..core.accel.calibration import calibrate, METHODS
+from ..core.errors import CalibrationError, InputError
+from ..core.windows import DEFAULTS, detect_static_windows
+
+
+def add_arguments(p):
+    """Add the options of ``fit`` to its parser."""
+    add_data_args(p)
+    p.add_argument('--method', choices=METHODS, default='ml',
+                   help='ml: maximum likelihood (Sun & Xu); ml-bc: ML with bootstrap bias '
+                        'correction; gn: 6-parameter Gauss-Newton (Gui Yi); ellipsoid: '
+                        'algebraic LS (default ml)')
+    p.add_argument('--mode', choices=('windows', 'samples'), default='windows',
+                   help='windows: one observation per detected static window; samples: '
+                        'every row is one observation (default windows)')
+    p.add_argument('--thermal', action='store_true',
+                   help='also fit temperature-band drift tables (needs temp)')
+    p.add_argument('--band-width', type=ranged(0.1, 1000.0), default=10.0,
+                   help='temperature band width, °C (default %(default)s)')
+    p.add_argument('--gravity', type=GRAVITY, default=G0,
+                   help='local gravity magnitude, m/s² (default %(default)s)')
+    p.add_argument('--max-predicted-error', type=ranged(1e-9, 1e3), default=0.02,
+                   metavar='M_S2',
+                   help='refuse a fit whose predicted accuracy (RMS error at 1 g over all '
+                        'orientations) is worse than this, m/s² (default %(default)s)')
+    p.add_argument('--force', action='store_true',
+                   help='write the calibration even if the fit did not converge (loud '
+                        'warning; JSON still says converged false)')
+    p.add_argument('-o', '--output', help='write the calibration YAML here (atomically)')
+    p.add_argument('--json', action='store_true', help='print one JSON object')
+    add_window_args(p)
+    g = p.add_argument_group('per-sensor history')
+    g.add_argument('--history', nargs='?', const='', default=None, metavar='DB',
+                   help='keep the windows in this SQLite history (default next to the '
+                        'calibration file of the nodes) and fit on all windows of --sensor')
+    g.add_argument('--sensor', help='sensor id in the history (firmware id, port or name)')
+
+
+def _history_path(args):
+    from ..dataio.history import default_history_path
+    return args.history or default_history_path()
+
+
+def history_observations(args, samples, obs):
+    """
+    Add this recording's windows to the history; return the observations of all of them.
+
+    :param args: parsed ``fit`` arguments (``history`` not None).
+    :param samples: the loaded recording.
+    :param obs: this recording's observations (static windows, outliers already dropped:
+        see ``_observations``); changed in place.
+    :return: ``obs`` with readings (N, 3), weights (N,), temps (N,), count N and gyro means
+        (N, 3) rad/s (NaN rows where a session had no gyro) over every kept window of the
+        sensor.
+    """
+    if args.mode != 'windows':
+        raise UsageError('accel-calib: fit --history works on static windows (--mode windows)')
+    if not args.sensor:
+        raise UsageError('accel-calib: fit --history needs --sensor NAME (whose history it '
+                         'is)')
+    from ..dataio.history import History
+    path = _history_path(args)
+    if same_file(path, args.data) or same_file(path, args.output):
+        raise UsageError('accel-calib: the history database must not be the data or the '
+                         'output file')
+    t = samples.t
+    if len(t) and t[0] > 1e9:            # stamps are already Unix times (a rosbag)
+        when = obs.t_mid
+    else:                                # a CSV from 0: assume it was just recorded
+        when = time.time() - (t[-1] - obs.t_mid) if len(t) else obs.t_mid
+    with History(path) as h:
+        if obs.count:
+            h.add_windows(args.sensor, obs.readings, obs.temps, obs.weights, when, obs.gyro)
+        kept = h.windows(args.sensor)
+    print(f'accel-calib: history {path}: {obs.count} windows from this recording, '
+          f'{len(kept["mean"])} kept for sensor {args.sensor}', file=sys.stderr)
+    obs.readings, obs.weights, obs.temps = kept['mean'], kept['weight'], kept['temp']
+    obs.gyro, obs.count = kept['gyro_mean'], len(kept['mean'])
+    return obs
+
+
+def record_fit(args, cal, temps=None):
+    """
+    Record a fitted calibration in the sensor's history.
+
+    :param args: parsed ``fit`` arguments.
+    :param cal: the Calibration.
+    :param temps: temperatures of the windows it used, °C (for its temperature range).
+    """
+    from ..dataio.history import History
+    if getattr(cal, 'temperature_range_c', None) is None and temps is not None:
+        finite = np.asarray(temps, float)
+        finite = finite[np.isfinite(finite)]
+        if len(finite):
+            cal.temperature_range_c = (float(finite.min()), float(finite.max()))
+    if getattr(cal, 'predicted_accuracy', None) is None and cal.covariance is not None:
+        from ..core.accuracy import predicted_accuracy
+        value = predicted_accuracy(cal.T, cal.covariance, cal.gravity)
+        if math.isfinite(value):
+            cal.predicted_accuracy = value
+    with History(_history_path(args)) as h:
+        h.add_calibration(args.sensor, cal)
+
+
+class _Observations:
+    """Observations for the fit, with what was left out (mode, windows, reasons)."""
+
+    def __init__(self, **kw):
+        self.__dict__.update(kw)
+
+
+def _observations(samples, args):
+    """Return the observations for the chosen mode, outlier windows dropped."""
+    if getattr(args, 'mode', 'windows') == 'samples':
+        return _Observations(readings=samples.accel, weights=None, temps=samples.temp,
+                             noise=None, count=len(samples), gyro=None, dropped=[],
+                             mean_count=1.0)
+    windows = detect_static_windows(samples, min_duration_s=args.min_window_s,
+                                    threshold_factor=args.threshold_factor)
+    if len(windows) == 0:
+        raise CalibrationError(
+            'no static windows found: hold each pose still for at least '
+            f'{args.min_window_s + 2 * DEFAULTS["trim_s"] + DEFAULTS["window_s"]:g} s '
+            '(or use --mode samples for a moving recording)'
+            + (f'; {len(windows.dropped)} still stretches were dropped because the gyro '
+               'shows rotation' if windows.dropped else ''))
+    weights = windows.weights(args.max_weight_s, samples.rate_hz)
+    dropped = list(windows.dropped)
+    from ..core.accel.calibration import find_outlier_windows
+    keep, outliers = find_outlier_windows(
+        windows.mean, weights, windows.count, windows.noise_std, args.gravity,
+        windows.temp, getattr(args, 'thermal', False), getattr(args, 'band_width', 10.0),
+        getattr(args, 'method', 'ml'))
+    for k, reason in outliers:
+        dropped.append({'t_start': float(samples.t[windows.start[k]]),
+                        't_stop': float(samples.t[windows.stop[k] - 1]), 'reason': reason})
+    windows = windows.select(keep)
+    dropped.sort(key=lambda d: d['t_start'])
+    return _Observations(readings=windows.mean, weights=weights[keep], temps=windows.temp,
+                         noise=windows.noise_std, count=len(windows),
+                         gyro=windows.gyro_mean, dropped=dropped, t_mid=windows.t_mid,
+                         mean_count=float(np.mean(windows.count)) if len(windows) else 1.0)
+
+
+def _band_dict(band):
+    d = band.to_dict()
+    d['usable'] = band.status == 'ok'
+    d['why_not'] = None if band.status == 'ok' else band.status
+    return d
+
+
+def _fit_summary(cal, extra):
+    d = {'method': cal.method, 'T': cal.T.tolist(), 'bias': cal.bias.tolist(),
+         'residual_rms': cal.residual_rms, 'iterations': cal.iterations,
+         'observations': cal.observations, 'converged': cal.converged, 'seconds': cal.seconds,
+         'gravity': cal.gravity, 'scale': cal.scale.tolist(),
+         'nonorthogonality_deg': cal.nonorthogonality_deg.tolist(),
+         'noise_std': [None if not np.isfinite(v) else float(v) for v in cal.noise_std],
+         'predicted_accuracy': cal.predicted_accuracy,
+         'gyro_bias': None if cal.gyro_bias is None else cal.gyro_bias.tolist(),
+         'temperature_range_c': (None if cal.temperature_range_c is None
+                                 else list(cal.temperature_range_c))}
+    if cal.covariance is not None:
+        d['stddev'] = np.sqrt(np.maximum(np.diag(cal.covariance), 0)).tolist()
+    if cal.thermal is not None:
+        d['thermal'] = cal.thermal.to_dict()
+        d['thermal']['bands'] = [_band_dict(b) for b in cal.thermal.bands]
+    d.update(extra)
+    return d
+
+
+def _print_fit(cal, summary, n_obs, mode, samples, dropped, out_path):
+    print(f'{cal.method} fit of {n_obs} {"windows" if mode == "windows" else "samples"} '
+          f'({samples} samples): {"converged" if cal.converged else "NOT converged"} '
+          f'in {cal.iterations} iterations, {cal.seconds * 1e3:.1f} ms')
+    with np.printoptions(precision=6, suppress=True):
+        print(f'T (raw = T·true + bias):\n{cal.T}')
+        print(f'bias [m/s²]: {cal.bias}')
+        print(f'scale: {cal.scale}   non-orthogonality [deg] xy xz yz: '
+              f'{cal.nonorthogonality_deg}')
+        if cal.gyro_bias is not None:
+            print(f'gyro bias [rad/s]: {cal.gyro_bias}')
+    print(f'gravity-norm residual RMS: {cal.residual_rms:.5f} m/s² '
+          f'(uncalibrated {summary["residual_rms_uncalibrated"]:.5f} m/s²)')
+    acc = cal.predicted_accuracy
+    print(f'predicted accuracy: {acc:.5f} m/s² RMS at 1 g over all orientations '
+          f'(limit {summary["max_predicted_error"]:g} m/s²)' if acc is not None
+          and np.isfinite(acc) else 'predicted accuracy: unknown (the poses do not '
+          'determine the calibration)')
+    if dropped:
+        print(f'dropped {len(dropped)} window(s):')
+        for d in dropped:
+            print(f'  {d["t_start"]:9.2f} .. {d["t_stop"]:9.2f} s: {d["reason"]}')
+    if cal.temperature_range_c is not None:
+        print(f'temperature range: {cal.temperature_range_c[0]:.1f} .. '
+              f'{cal.temperature_range_c[1]:.1f} °C')
+    if cal.thermal is not None:
+        for band in cal.thermal.bands:
+            print(f'  band {band.low_c:5.1f}..{band.high_c:5.1f} °C: {band.windows:3d} windows,'
+                  f' {"usable" if band.status == "ok" else "not usable: " + band.status}')
+    if out_path:
+        print(f'wrote {out_path}')
+
+
+def _unstorable(cal):
+    """Reason the calibration file loader would refuse ``cal`` (None when it accepts it)."""
+    from ..dataio.calibration_file import calibration_from_dict, calibration_to_dict
+    try:
+        calibration_from_dict(calibration_to_dict(cal))
+    except InputError as err:
+        return f'the fitted calibration is implausible ({err}); are the data in m/s²?'
+    return None
+
+
+def _drop_implausible_gyro_bias(cal):
+    """Leave out a gyro bias no rad/s gyro has (the accelerometer fit still counts)."""
+    from ..dataio.calibration_file import MAX_GYRO_BIAS
+    biases = [cal.gyro_bias] + ([b.gyro_bias for b in cal.thermal.bands]
+                                if cal.thermal is not None else [])
+    if all(b is None or np.all(np.abs(b) <= MAX_GYRO_BIAS) for b in biases):
+        return
+    print(f'accel-calib: warning: gyro bias {np.round(cal.gyro_bias, 3).tolist()} exceeds '
+          f'{MAX_GYRO_BIAS:g} rad/s (are gx gy gz in rad/s?); not stored', file=sys.stderr)
+    cal.gyro_bias = None
+    if cal.thermal is not None:
+        for band in cal.thermal.bands:
+            band.gyro_bias = None
+
+
+def run(args, out):
+    """Run ``accel-calib fit``; return the exit status."""
+    check_output(args.output, args.data)
+    samples = load_data(args)
+    obs = None
+    try:
+        obs = _observations(samples, args)
+        if getattr(args, 'history', None) is not None:     # per-sensor history
+            obs = history_observations(args, samples, obs)
+        cal = calibrate(obs.readings, gravity=args.gravity, method=args.method,
+                        weights=obs.weights, temps=obs.temps, thermal=args.thermal,
+                        band_width_c=args.band_width, noise_std=obs.noise,
+                        source=os.path.basename(args.data), gyro_means=obs.gyro,
+                        mean_count=obs.mean_count)
+    except CalibrationError as err:
+        if args.json:       # still exactly one JSON object, saying why
+            out({'method': args.method, 'mode': args.mode, 'samples': len(samples),
+                 'observations': 0 if obs is None else obs.count, 'accepted': False,
+                 'refusal': str(err), 'converged': False, 'predicted_accuracy': None,
+                 'max_predicted_error': args.max_predicted_error,
+                 'dropped_windows': [] if obs is None else obs.dropped, 'output': None})
+        raise
+    raw_resid = np.sqrt(np.mean((np.linalg.norm(obs.readings, axis=1) - args.gravity) ** 2))
+    _drop_implausible_gyro_bias(cal)
+    from ..core.acceptance import review
+    verdict = review(cal, args.max_predicted_error, allow_unconverged=args.force,
+                     limit_name='--max-predicted-error')
+    refusal = verdict.refusal
+    if not verdict.converged and refusal is not None:
+        refusal += '; nothing written (--force writes it anyway)'
+    refusal = refusal or _unstorable(cal)
+    extra = {'mode': args.mode, 'samples': len(samples), 'residual_rms_uncalibrated': raw_resid,
+             'max_predicted_error': args.max_predicted_error, 'accepted': refusal is None,
+             'refusal': refusal, 'dropped_windows': obs.dropped,
+             'output': args.output if refusal is None else None}
+    if refusal is None and not cal.converged:
+        print(f'accel-calib: WARNING: the {cal.method} fit did NOT converge in '
+              f'{cal.iterations} iterations; writing it only because of --force. Do not '
+              'trust this calibration.', file=sys.stderr)
+    for warning in verdict.warnings if refusal is None else []:
+        print(f'accel-calib: warning: {warning}', file=sys.stderr)
+    if refusal is None and args.output:
+        from ..dataio.calibration_file import save_calibration
+        save_calibration(cal, args.output)
+    if refusal is None and getattr(args, 'history', None) is not None:
+        record_fit(args, cal, obs.temps)
+    summary = _fit_summary(cal, extra)
+    if args.json:
+        out(summary)
+    else:
+        _print_fit(cal, summary, obs.count, args.mode, len(samples), obs.dropped,
+                   args.output if refusal is None else None)
+    if refusal is not None:
+        raise CalibrationError(refusal)
+    return 0

@@ -1,0 +1,204 @@
+"""
+The state of a guided session: holds, windows, advice, and the fit at the end.
+
+:class:`HoldTracker` decides sample by sample when a pose is held still and for how long;
+:class:`GuideSession` keeps the windows, the advice (``core.advice``) and the pose to ask
+for next, and fits the calibration when it is enough.
+"""
+
+from collections import deque
+import math
+
+import numpy as np
+
+from .common import G0
+from ..core.advice import advise, coverage, DEFAULT_TARGET
+
+
+class HoldTracker:
+    """
+    Decide, sample by sample, when a pose is being held still and for how long.
+
+    Still means the moving standard deviation of the acceleration over ``window_s``
+    is below ``factor`` x the noise floor (the smallest moving standard deviation seen
+    lately, never below ``min_floor``). After ``settle_s`` of stillness the hold starts;
+    after ``hold_s`` more the window is captured and the tracker waits for the next
+    movement, so a pose gives one window however long it is held.
+
+    :param rate_hz: nominal sample rate, Hz.
+    """
+
+    def __init__(self, rate_hz, hold_s=2.0, window_s=0.25, factor=3.0, settle_s=0.3,
+                 min_floor=0.005, floor_memory_s=60.0):
+        self.n = max(int(round(window_s * rate_hz)), 3)
+        self.hold_s = hold_s
+        self.settle_s = settle_s
+        self.factor = factor
+        self.min_floor = min_floor
+        self._ring = deque(maxlen=self.n)
+        self._sum = [0.0, 0.0, 0.0]
+        self._sum2 = [0.0, 0.0, 0.0]
+        self._block = max(int(round(floor_memory_s * rate_hz / 6)), 1)
+        self._floors = deque(maxlen=6)
+        self._block_min, self._block_count = math.inf, 0
+        self.state = 'moving'
+        self._t0 = 0.0
+        self._acc = None
+        self.progress = 0.0
+        self.last = np.array([0.0, 0.0, G0])
+
+    @property
+    def noise_floor(self):
+        """Return the noise floor now, m/s²."""
+        return max(min(list(self._floors) + [self._block_min]), self.min_floor)
+
+    def update(self, t, a, temp=math.nan):
+        """
+        Add one sample; return a captured window (dict) or None.
+
+        :param t: time, s.
+        :param a: (3,) acceleration, m/s².
+        :param temp: °C or NaN.
+        """
+        a = [float(a[0]), float(a[1]), float(a[2])]
+        if len(self._ring) == self.n:
+            old = self._ring[0]
+            for i in range(3):
+                self._sum[i] -= old[i]
+                self._sum2[i] -= old[i] * old[i]
+        self._ring.append(a)
+        for i in range(3):
+            self._sum[i] += a[i]
+            self._sum2[i] += a[i] * a[i]
+        m = len(self._ring)
+        var = sum(max(self._sum2[i] / m - (self._sum[i] / m) ** 2, 0.0) for i in range(3)) / 3
+        std = math.sqrt(var)
+        if m < self.n:
+            return None
+        self._block_min = min(self._block_min, std)
+        self._block_count += 1
+        if self._block_count >= self._block:
+            self._floors.append(self._block_min)
+            self._block_min, self._block_count = math.inf, 0
+        if std > self.factor * self.noise_floor:
+            self.state, self.progress, self._acc = 'moving', 0.0, None
+            return None
+        if self.state == 'moving':
+            self.state, self._t0 = 'settling', t
+        if self.state == 'settling':
+            if t - self._t0 < self.settle_s:
+                return None
+            self.state, self._t0 = 'holding', t
+            self._acc = {'n': 0, 's': np.zeros(3), 's2': np.zeros(3), 'temp': [], 't0': t}
+        if self.state == 'holding':
+            acc = self._acc
+            v = np.array(a)
+            acc['n'] += 1
+            acc['s'] += v
+            acc['s2'] += v * v
+            if math.isfinite(temp):
+                acc['temp'].append(temp)
+            self.progress = min((t - self._t0) / self.hold_s, 1.0)
+            if self.progress >= 1.0 and acc['n'] >= 3:
+                self.state = 'captured'
+                n = acc['n']
+                mean = acc['s'] / n
+                scatter = np.sqrt(np.maximum(acc['s2'] - n * mean ** 2, 0.0) / (n - 1))
+                return {'mean': mean, 'scatter': scatter, 'count': n,
+                        'temp': float(np.mean(acc['temp'])) if acc['temp'] else math.nan,
+                        't_start': acc['t0'], 't_stop': t, 't_mid': 0.5 * (acc['t0'] + t),
+                        'rate_hz': (n - 1) / max(t - acc['t0'], 1e-9)}
+        return None
+
+    def current(self):
+        """Mean acceleration over the last ``window_s``, m/s² (3,)."""
+        m = len(self._ring)
+        if m:
+            self.last = np.array(self._sum) / m
+        return self.last
+
+
+class GuideSession:
+    """
+    The logic of a guided session, without any terminal: windows, advice, fit.
+
+    :param method: 'ml' or 'gn'.
+    :param target: predicted accuracy that is enough, m/s².
+    """
+
+    def __init__(self, rate_hz, method='ml', target=DEFAULT_TARGET, gravity=G0, hold_s=2.0,
+                 max_weight_s=5.0):
+        self.method = method
+        self.target = target
+        self.gravity = gravity
+        self.max_weight_s = max_weight_s
+        self.tracker = HoldTracker(rate_hz, hold_s)
+        self.windows = []
+        self.samples = 0
+        self.advice = advise(np.zeros((0, 3)), np.zeros(0), 0.02, gravity, method, target)
+
+    @property
+    def enough(self):
+        """Return True once the advice says the target is reached."""
+        return self.advice.enough
+
+    @property
+    def target_direction(self):
+        """Gravity direction (3,) of the pose asked for, or None when enough."""
+        pose = self.advice.next_pose
+        return None if pose is None else pose.gravity_direction
+
+    def arrays(self):
+        """Return (means (N, 3), weights (N,), temps (N,), noise (3,)) of the windows."""
+        w = self.windows
+        means = np.array([x['mean'] for x in w]).reshape(-1, 3)
+        counts = np.array([x['count'] for x in w], float)
+        rates = np.array([x['rate_hz'] for x in w], float)
+        weights = np.minimum(counts, self.max_weight_s * rates)
+        temps = np.array([x['temp'] for x in w], float)
+        scatter = np.array([x['scatter'] for x in w]).reshape(-1, 3)
+        dof = np.maximum(counts - 1, 0)
+        noise = np.sqrt(np.sum(dof[:, None] * scatter ** 2, axis=0) / max(dof.sum(), 1.0)) \
+            if len(w) else np.full(3, self.tracker.noise_floor)
+        return means, weights, temps, noise
+
+    def update(self, t, accel, temp):
+        """
+        Feed samples; return the windows captured among them.
+
+        :param t: (N,) s; ``accel`` (N, 3) m/s²; ``temp`` (N,) °C (NaN when unknown).
+        """
+        new = []
+        for k in range(len(t)):
+            window = self.tracker.update(t[k], accel[k], temp[k])
+            if window is not None:
+                self.windows.append(window)
+                new.append(window)
+        self.samples += len(t)
+        if new:
+            means, weights, _, noise = self.arrays()
+            self.advice = advise(means, weights, noise, self.gravity, self.method, self.target)
+        return new
+
+    def status(self):
+        """Return what the screen shows, as a dict."""
+        now = self.tracker.current()
+        norm = float(np.linalg.norm(now))
+        direction = now / norm if norm > 0 else np.array([0.0, 0.0, 1.0])
+        target = self.target_direction
+        angle = None
+        if target is not None:
+            angle = float(np.degrees(np.arccos(np.clip(direction @ target, -1, 1))))
+        means = self.arrays()[0]
+        distinct = coverage(means / np.linalg.norm(means, axis=1, keepdims=True))[1] \
+            if len(means) else 0
+        return {'direction': direction, 'norm_g': norm / self.gravity, 'angle_deg': angle,
+                'state': self.tracker.state, 'progress': self.tracker.progress,
+                'windows': len(self.windows), 'distinct': distinct, 'advice': self.advice}
+
+    def fit(self, source=''):
+        """Fit the calibration to the windows; CalibrationError when it cannot."""
+        from ..core.accel.calibration import calibrate
+        means, weights, temps, noise = self.arrays()
+        return calibrate(means, gravity=self.gravity, method=self.method, weights=weights,
+                         temps=temps, noise_std=noise, source=source)

@@ -1,0 +1,207 @@
+"""
+Where the guide's samples come from: a serial port, a ROS topic or a simulated person.
+
+Each source has ``label``, ``read(session)`` -> (t (N,) s, accel (N, 3) m/s², temp (N,) °C)
+and ``close()``. pyserial and rclpy are imported only by the source that needs them.
+"""
+
+import math
+import time
+
+import numpy as np
+
+from .common import G0
+from ..core.errors import InputError
+
+
+def _slerp(a, b, s):
+    """Point a fraction ``s`` of the way along the great circle from unit ``a`` to ``b``."""
+    dot = float(np.clip(a @ b, -1.0, 1.0))
+    if dot < -0.999:            # opposite: turn over a perpendicular axis
+        p = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        p /= np.linalg.norm(p)
+        return _slerp(a, p, 2 * s) if s < 0.5 else _slerp(p, b, 2 * s - 1)
+    omega = math.acos(dot)
+    if omega < 1e-9:
+        return b.copy()
+    v = (math.sin((1 - s) * omega) * a + math.sin(s * omega) * b) / math.sin(omega)
+    return v / np.linalg.norm(v)
+
+
+class SimulatedSource:
+    """
+    A simulated MPU9250 held by a simulated person who follows the guide.
+
+    The person holds a pose until the guide has captured it, waits a reaction time,
+    turns to the pose the guide asks for (off by a few degrees) in ``turn_s`` with the
+    hand's acceleration, and holds again. Time runs ``speed`` times faster than the wall
+    clock, so a test of a whole session takes seconds.
+    """
+
+    label = 'simulated sensor and person'
+
+    def __init__(self, rate_hz=100.0, speed=1.0, seed=0, error_deg=3.0, turn_s=2.0,
+                 temp=25.0, gravity=G0, tremor=0.02, reaction_s=0.5):
+        from ..core.simulate import mpu9250_like
+        self.rng = np.random.default_rng(seed)
+        self.sensor = mpu9250_like(self.rng, rate_hz)
+        self.rate = rate_hz
+        self.speed = speed
+        self.error_deg = error_deg
+        self.turn_s = turn_s
+        self.temp = temp
+        self.gravity = gravity
+        self.tremor = tremor
+        self.reaction_s = reaction_s
+        self.t = 0.0
+        self._wall0 = None
+        self.direction = np.array([0.0, 0.0, 1.0])
+        self.state, self._since, self._from, self._to = 'holding', 0.0, None, None
+        self._axis = np.array([1.0, 0.0, 0.0])
+
+    def _person(self, session, t):
+        if self.state == 'holding':
+            if session is not None and session.tracker.state == 'captured' \
+                    and not session.enough:
+                if self._since is None:
+                    self._since = t
+                if t - self._since >= self.reaction_s:
+                    from ..core.person import tilt
+                    self._from = self.direction.copy()
+                    self._to = tilt(session.target_direction, abs(self.rng.normal(
+                        0.0, self.error_deg)), self.rng)
+                    self.state, self._since = 'turning', t
+                    axis = np.cross(self._from, self.rng.standard_normal(3))
+                    self._axis = axis / np.linalg.norm(axis)
+            else:
+                self._since = None
+        elif self.state == 'turning':
+            s = (t - self._since) / self.turn_s
+            if s >= 1.0:
+                self.direction = self._to
+                self.state, self._since = 'holding', None
+                return np.zeros(3)
+            smooth = s * s * (3 - 2 * s)
+            self.direction = _slerp(self._from, self._to, smooth)
+            return 1.5 * math.sin(math.pi * s) * self._axis
+        return np.zeros(3)
+
+    def read(self, session):
+        """Return the samples (t, accel, temp) due by now; sleeps a little."""
+        time.sleep(0.02)
+        now = time.monotonic()
+        if self._wall0 is None:
+            self._wall0 = now - 0.02
+        due = (now - self._wall0) * self.speed
+        n = min(int((due - self.t) * self.rate), int(5 * self.rate))
+        if n <= 0:
+            return np.zeros(0), np.zeros((0, 3)), np.zeros(0)
+        t = self.t + np.arange(n) / self.rate
+        true = np.empty((n, 3))
+        for k in range(n):
+            motion = self._person(session, t[k])
+            true[k] = self.gravity * self.direction + motion
+        self.t = t[-1] + 1.0 / self.rate
+        temp = np.full(n, float(self.temp))
+        raw = self.sensor.measure(true, self.rng, temp)
+        raw = raw + self.rng.standard_normal(raw.shape) * self.tremor
+        return t, raw, temp
+
+    def close(self):
+        """Nothing to release."""
+
+
+class SerialSource:
+    """MPU9250 frames (interface §1) or ASCII lines from a serial port."""
+
+    def __init__(self, port, baud=1000000, ascii_lines=False, accel_range=2, gyro_range=250):
+        try:
+            import serial
+        except ImportError:
+            raise InputError('pyserial is not installed (pip install pyserial)') from None
+        from ..dataio.mpu9250_frame import AsciiLineParser, Converter, FrameParser
+        self.label = f'serial {port} at {baud} baud'
+        try:
+            self.port = serial.Serial(port, baud, timeout=0.05)
+        except (serial.SerialException, OSError, ValueError) as err:
+            raise InputError(f'cannot open {port}: {err}') from None
+        self.parser = AsciiLineParser() if ascii_lines else FrameParser()
+        self.converter = Converter(accel_range, gyro_range)
+        self._last_us, self._t = None, 0.0
+
+    def read(self, session):
+        """Return the samples (t, accel, temp) received since the last call."""
+        import serial
+        try:
+            data = self.port.read(max(1, self.port.in_waiting))
+        except (serial.SerialException, OSError) as err:
+            raise InputError(f'serial port: {err}') from None
+        t, acc, temp = [], [], []
+        for frame in self.parser.feed(data):
+            a, c, _ = self.converter.to_si(frame.counts)
+            if frame.t_us is None:
+                self._t = time.monotonic()
+            else:
+                if self._last_us is not None:
+                    self._t += ((frame.t_us - self._last_us) % 2 ** 32) * 1e-6
+                self._last_us = frame.t_us
+            t.append(self._t)
+            acc.append(a)
+            temp.append(c)
+        return np.array(t), np.array(acc).reshape(-1, 3), np.array(temp)
+
+    def close(self):
+        """Close the port."""
+        self.port.close()
+
+
+class RosSource:
+    """sensor_msgs/Imu (and Temperature) from ROS 2 topics; rclpy is imported here."""
+
+    def __init__(self, topic, temp_topic=None):
+        try:
+            import rclpy
+            from rclpy.qos import qos_profile_sensor_data
+            from sensor_msgs.msg import Imu, Temperature
+        except ImportError as err:
+            raise InputError(f'ROS 2 (rclpy) is not available: {err}') from None
+        from rclpy.executors import SingleThreadedExecutor
+        self.label = f'ROS topic {topic}'
+        self.rclpy = rclpy
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node('accel_calib_guide', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.buffer = []
+        self.temp = math.nan
+        self.node.create_subscription(Imu, topic, self._on_imu, qos_profile_sensor_data)
+        if temp_topic:
+            self.node.create_subscription(Temperature, temp_topic, self._on_temp,
+                                          qos_profile_sensor_data)
+
+    def _on_imu(self, msg):
+        a = msg.linear_acceleration
+        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        if stamp <= 0:
+            stamp = time.monotonic()
+        self.buffer.append((stamp, (a.x, a.y, a.z), self.temp))
+
+    def _on_temp(self, msg):
+        self.temp = float(msg.temperature)
+
+    def read(self, session):
+        """Spin briefly; return the samples (t, accel, temp) received."""
+        deadline = time.monotonic() + 0.05
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.01)
+        got, self.buffer = self.buffer, []
+        got = [g for g in got if all(map(math.isfinite, g[1]))]
+        return (np.array([g[0] for g in got]), np.array([g[1] for g in got]).reshape(-1, 3),
+                np.array([g[2] for g in got], float))
+
+    def close(self):
+        """Leave the ROS graph."""
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.rclpy.try_shutdown(context=self.context)
