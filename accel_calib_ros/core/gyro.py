@@ -109,7 +109,7 @@ class GyroMove:
 
     @property
     def used(self):
-        """True when the move is part of the fit."""
+        """Tell whether the move is part of the fit."""
         return self.reason is None
 
 
@@ -156,12 +156,12 @@ class GyroCalibration:
 
     @property
     def moves_used(self):
-        """Number of moves in the fit."""
+        """Count the moves in the fit."""
         return sum(move.used for move in self.moves)
 
     @property
     def moves_dropped(self):
-        """The moves left out, each with its ``reason``."""
+        """List the moves left out, each with its ``reason``."""
         return [move for move in self.moves if not move.used]
 
     def correct(self, raw_gyro):
