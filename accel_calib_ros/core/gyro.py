@@ -350,7 +350,7 @@ class _Moves:
         return residual, np.degrees(np.arccos(cos_turn))
 
 
-def _accel_corrector(accel):
+def accel_corrector(accel):
     """Return f(readings (N, 3), temps (N,) or None) -> calibrated readings."""
     if accel is None:
         return lambda y, temp: y
@@ -442,7 +442,7 @@ def fit_gyro(samples, windows=None, accel=None, bias=None, full_scale=None, edge
         raise CalibrationError(
             f'{len(w_start)} static window(s): the gyroscope fit needs poses held still with '
             f'moves between them (at least {MIN_MOVES} moves)')
-    correct_accel = _accel_corrector(accel)
+    correct_accel = accel_corrector(accel)
     finite = np.all(np.isfinite(gyro), axis=1)
     count = w_stop - w_start
     # Bias from the static windows (weighted by samples), with its standard error.
