@@ -4,7 +4,7 @@ from accel_calib_ros.core import simulate
 from accel_calib_ros.core.calibration import calibrate
 from accel_calib_ros.core.errors import CalibrationError, InputError
 from accel_calib_ros.core.magnetometer import (
-    canonical, correct_field, fit_magnetometer, sphere_coverage)
+    _linear_start, canonical, correct_field, fit_alignment, fit_magnetometer, sphere_coverage)
 from accel_calib_ros.core.samples import Samples
 from accel_calib_ros.core.windows import detect_static_windows
 import numpy as np
@@ -209,3 +209,19 @@ def test_degenerate_inputs_give_clear_errors():
         Samples(s.t, s.accel, mag=partial).validate()
     Samples(s.t, s.accel, mag=mag).validate()          # rows without a sample are fine
     assert Samples(s.t, s.accel, mag=mag).subset(slice(0, 8)).mag_rows.sum() == 5
+
+
+def test_alignment_is_found_from_any_misalignment():
+    attitude = Rotation.random(20, random_state=1)           # body to world, one per window
+    dip = np.radians(60.0)
+    up = attitude.inv().apply([0.0, 0.0, 1.0])
+    field = attitude.inv().apply([np.cos(dip), 0.0, -np.sin(dip)])
+    noise = np.random.default_rng(0).standard_normal((20, 3)) * 1e-3
+    for angle in (5.0, 60.0, 170.0):
+        R = Rotation.from_rotvec(np.radians(angle) * np.array([1.0, 2.0, 3.0])
+                                 / np.sqrt(14.0)).as_matrix()
+        v = field @ R.T + noise
+        v /= np.linalg.norm(v, axis=1, keepdims=True)
+        for R_fit, dip_fit in (_linear_start(up, v), fit_alignment(up, v)[:2]):
+            assert Rotation.from_matrix(R_fit @ R.T).magnitude() < 3e-3
+            assert dip_fit == pytest.approx(dip, abs=3e-3)
