@@ -195,6 +195,8 @@ def test_degenerate_inputs_give_clear_errors():
         fit_gyro(samples, windows.select(np.arange(3)))    # two moves
     with pytest.raises(InputError, match='accel'):
         fit_gyro(samples, windows, accel='calibrated')
+    with pytest.raises(InputError, match='outside'):
+        fit_gyro(samples.subset(slice(0, 300)), windows)   # windows of another recording
     # NaN rows in the gyro drop the moves they fall in, with the reason.
     gyro = samples.gyro.copy()
     t = samples.t

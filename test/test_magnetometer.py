@@ -201,6 +201,8 @@ def test_degenerate_inputs_give_clear_errors():
     mag[:5] = s.mag[:5]
     with pytest.raises(CalibrationError, match='5 magnetometer samples'):
         fit_magnetometer(Samples(s.t, s.accel, s.temp, s.gyro, mag))
+    with pytest.raises(InputError, match='outside'):
+        fit_magnetometer(s.subset(slice(0, 2000)), detect_static_windows(s))
     with pytest.raises(CalibrationError, match='no static window'):
         fit_magnetometer(s, detect_static_windows(s).select(np.zeros(0, int)))
     partial = s.mag.copy()

@@ -396,12 +396,20 @@ def _identifiability(F, prior):
     return out
 
 
-def _windows_of(samples, windows):
-    """Sorted (start, stop) index arrays of the static windows."""
+def window_ranges(samples, windows):
+    """
+    Return the static windows' (start, stop) sample indices, sorted, empty ones left out.
+
+    :param windows: StaticWindows (or anything with ``start``/``stop``), or None to
+        detect them in ``samples``.
+    :raises InputError: indices outside the recording (windows of another recording).
+    """
     if windows is None:
         windows = detect_static_windows(samples)
     start = np.asarray(windows.start, int).reshape(-1)
     stop = np.asarray(windows.stop, int).reshape(-1)
+    if len(start) != len(stop) or np.any(start < 0) or np.any(stop > len(samples)):
+        raise InputError(f'static windows outside the {len(samples)} samples of the recording')
     keep = stop > start
     order = np.argsort(start[keep])
     return start[keep][order], stop[keep][order]
@@ -437,7 +445,7 @@ def fit_gyro(samples, windows=None, accel=None, bias=None, full_scale=None, edge
     gyro = np.asarray(samples.gyro, float)
     if len(t) < 2 or not np.all(np.isfinite(t)) or np.any(np.diff(t) < 0):
         raise InputError('sample times must be finite and increasing, at least two rows')
-    w_start, w_stop = _windows_of(samples, windows)
+    w_start, w_stop = window_ranges(samples, windows)
     if len(w_start) < 2:
         raise CalibrationError(
             f'{len(w_start)} static window(s): the gyroscope fit needs poses held still with '

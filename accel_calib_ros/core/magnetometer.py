@@ -52,9 +52,8 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from .errors import CalibrationError, InputError
-from .gyro import _skew, accel_corrector
+from .gyro import _skew, accel_corrector, window_ranges
 from .ml import fit_ml
-from .windows import detect_static_windows
 
 COVERAGE_CELLS = 50
 """Equal-area cells on the sphere for :func:`sphere_coverage` (about 33° across each)."""
@@ -310,8 +309,7 @@ def _field_error_matrix(T1, hard_iron, R, field_known, field_uT):
 
 def _window_means(samples, windows, correct_accel, mag_ok):
     """Mean up directions (W, 3) and mean raw field (W, 3) of windows with mag samples."""
-    start = np.asarray(windows.start, int)
-    stop = np.asarray(windows.stop, int)
+    start, stop = window_ranges(samples, windows)
     cm = np.vstack([np.zeros((1, 3)), np.cumsum(np.where(mag_ok[:, None], samples.mag, 0.0),
                                                 axis=0)])
     cn = np.r_[0, np.cumsum(mag_ok)]
@@ -385,8 +383,6 @@ def fit_magnetometer(samples, windows=None, accel=None, field_uT=None,
     corrected = np.linalg.solve(T1, (mag - hard_iron).T)
     residual_rms = float(np.sqrt(np.mean((np.linalg.norm(corrected, axis=0) - 1.0) ** 2))) * F
     # Step 2: R and the dip from the static windows.
-    if windows is None:
-        windows = detect_static_windows(samples)
     up, mag_means = _window_means(samples, windows, correct_accel, mag_ok)
     W = len(up)
     if W == 0:
