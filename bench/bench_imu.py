@@ -34,7 +34,7 @@ def session(seed, poses, tremor_deg, full_scale=None, move_s=1.5):
     sensor = simulate.with_gyro_errors(simulate.mpu9250_like(rng),
                                        np.random.default_rng(seed + 1000), full_scale)
     sensor.magnetometer = simulate.ak8963_like(np.random.default_rng(seed + 500))
-    return simulate.simulate_session(sensor, simulate.random_directions(poses, rng), rng,
+    return simulate.simulate_session(sensor, simulate.random_poses(poses, rng), rng,
                                      move_s=move_s, tremor_deg=tremor_deg)
 
 

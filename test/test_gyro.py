@@ -10,6 +10,7 @@ from accel_calib_ros.core.windows import detect_static_windows
 import numpy as np
 import peer_data
 import pytest
+from scipy.spatial.transform import Rotation
 
 
 def hand_held(seed, poses=24, tremor_deg=0.3, full_scale=None, move_s=1.5, directions=None):
@@ -18,7 +19,7 @@ def hand_held(seed, poses=24, tremor_deg=0.3, full_scale=None, move_s=1.5, direc
     sensor = simulate.with_gyro_errors(simulate.mpu9250_like(rng),
                                        np.random.default_rng(seed + 1000), full_scale)
     if directions is None:
-        directions = simulate.random_directions(poses, rng)
+        directions = simulate.random_poses(poses, rng)
     return simulate.simulate_session(sensor, directions, rng, move_s=move_s,
                                      tremor_deg=tremor_deg)
 
@@ -112,17 +113,21 @@ def test_predicted_accuracy_is_the_sphere_average():
     assert predicted_accuracy(T, np.full((9, 9), np.nan)) == float('inf')
 
 
-def tilted_directions(rng, n, max_tilt_deg):
-    """Gravity directions within ``max_tilt_deg`` of +z (a board tilted on a table)."""
+def tilted_poses(rng, n, max_tilt_deg):
+    """Poses tilted by up to ``max_tilt_deg`` about horizontal axes (a board on a table)."""
     tilt = np.radians(rng.uniform(0, max_tilt_deg, n))
     heading = rng.uniform(0, 2 * np.pi, n)
-    return np.column_stack([np.sin(tilt) * np.cos(heading), np.sin(tilt) * np.sin(heading),
-                            np.cos(tilt)])
+    axis = np.column_stack([np.sin(heading), -np.cos(heading), np.zeros(n)])
+    poses = Rotation.from_rotvec(tilt[:, None] * axis)
+    up = np.column_stack([np.sin(tilt) * np.cos(heading), np.sin(tilt) * np.sin(heading),
+                          np.cos(tilt)])
+    assert np.allclose(poses.inv().apply([0.0, 0.0, 1.0]), up)
+    return poses
 
 
 def test_a_rotation_axis_never_turned_is_named_and_T_kept_at_identity():
     rng = np.random.default_rng(4)
-    session = hand_held(4, directions=tilted_directions(rng, 16, 50.0))
+    session = hand_held(4, directions=tilted_poses(rng, 16, 50.0))
     fit = fit_gyro(session.samples, accel=(session.sensor.T, session.sensor.bias))
     assert fit.missing_axes == ('z',)
     assert 'no turn about the z axis' in fit.message
@@ -131,16 +136,13 @@ def test_a_rotation_axis_never_turned_is_named_and_T_kept_at_identity():
     assert fit.excitation_deg[2] < 30 < min(fit.excitation_deg[:2])
     # Turns about x only (gravity in the y-z plane): y and z are missing, x is not.
     angle = np.linspace(0, 10, 16)
-    about_x = np.column_stack([np.zeros(16), np.cos(angle), np.sin(angle)])
-    session = hand_held(5, directions=about_x)
+    session = hand_held(5, directions=Rotation.from_rotvec(angle[:, None] * [1.0, 0.0, 0.0]))
     fit = fit_gyro(session.samples, accel=(session.sensor.T, session.sensor.bias))
     assert fit.missing_axes == ('y', 'z')
     assert 'no turn about the y and z axes' in fit.message
     # Every turn about the same tilted axis: x and y are never turned independently.
     axis = np.array([1.0, 1.0, 0.0]) / np.sqrt(2.0)
-    across = np.cross(axis, [0.0, 0.0, 1.0])
-    same_axis = np.cos(angle)[:, None] * [0.0, 0.0, 1.0] + np.sin(angle)[:, None] * across
-    session = hand_held(6, directions=same_axis)
+    session = hand_held(6, directions=Rotation.from_rotvec(angle[:, None] * axis))
     fit = fit_gyro(session.samples, accel=(session.sensor.T, session.sensor.bias))
     assert set(fit.missing_axes) >= {'x', 'y'}
 

@@ -20,7 +20,7 @@ def session_with_mag(seed, poses=24, directions=None, rate_hz=100.0, misalignmen
     sensor.magnetometer = simulate.ak8963_like(np.random.default_rng(seed + 500),
                                                misalignment_deg=misalignment_deg)
     if directions is None:
-        directions = simulate.random_directions(poses, rng)
+        directions = simulate.random_poses(poses, rng)
     return simulate.simulate_session(sensor, directions, rng, rate_hz=rate_hz,
                                      earth_field=earth or simulate.EarthField(48.0, 60.0),
                                      tremor_deg=tremor_deg)
@@ -162,22 +162,34 @@ def test_insufficient_coverage_is_refused_with_the_fraction_seen():
     rng = np.random.default_rng(14)
     tilt = np.radians(rng.uniform(0, 60, 16))
     heading = rng.uniform(0, 2 * np.pi, 16)
-    directions = np.column_stack([np.sin(tilt) * np.cos(heading),
-                                  np.sin(tilt) * np.sin(heading), np.cos(tilt)])
-    session = session_with_mag(14, directions=directions)
+    axis = np.column_stack([np.sin(heading), -np.cos(heading), np.zeros(16)])
+    session = session_with_mag(14, directions=Rotation.from_rotvec(tilt[:, None] * axis))
     sensor = session.sensor
     with pytest.raises(CalibrationError, match=r'saw \d+% of the sphere'):
         fit_magnetometer(session.samples, accel=(sensor.T, sensor.bias))
     relaxed = fit_magnetometer(session.samples, accel=(sensor.T, sensor.bias), min_coverage=0)
     assert relaxed.coverage < 0.25
-    full = fit_magnetometer(session_with_mag(15).samples, accel=(sensor.T, sensor.bias))
+    other = session_with_mag(15)
+    full = fit_magnetometer(other.samples, accel=(other.sensor.T, other.sensor.bias))
     assert relaxed.predicted_accuracy > 3 * full.predicted_accuracy
-    # Turned about one axis only: the field stays on one cone although it crosses many cells.
-    angle = np.linspace(0, 2 * np.pi, 12, endpoint=False)
-    flat = np.column_stack([np.cos(angle), np.sin(angle), np.zeros(12)])
-    session = session_with_mag(16, directions=flat)
-    with pytest.raises(CalibrationError, match='stay near one cone'):
+    # A robot yawing on the floor: the field stays on one cone, a flat ellipse.
+    heading = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    session = session_with_mag(16, directions=Rotation.from_rotvec(heading[:, None]
+                                                                   * [0.0, 0.0, 1.0]))
+    with pytest.raises(CalibrationError, match=r'do not determine .* \d+% of the sphere'):
         fit_magnetometer(session.samples)
+    # A band of ±20° about a great circle: an ellipsoid can be fitted, and the path
+    # crosses many cells, but the directions stay near one plane.
+    rng = np.random.default_rng(16)
+    azimuth = rng.uniform(0, 2 * np.pi, 5000)
+    elevation = np.radians(rng.uniform(-20, 20, 5000))
+    u = np.column_stack([np.cos(elevation) * np.cos(azimuth),
+                         np.cos(elevation) * np.sin(azimuth), np.sin(elevation)])
+    mag = 48.0 * u + [20.0, -10.0, 5.0] + 0.1 * rng.standard_normal((5000, 3))
+    band = Samples(np.arange(5000) / 100.0, np.tile([0.0, 0.0, 9.8], (5000, 1)), mag=mag)
+    assert sphere_coverage(u) >= 0.25
+    with pytest.raises(CalibrationError, match='stay near one cone'):
+        fit_magnetometer(band)
 
 
 def test_too_few_static_windows_keep_R_at_identity():

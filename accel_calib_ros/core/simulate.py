@@ -360,9 +360,30 @@ def _segments(n_pose, holds, move_s, rate_hz):
     return out
 
 
+def _poses(directions):
+    """Return ``directions`` as a stack of Rotations when it holds poses, else None."""
+    if not isinstance(directions, Rotation):
+        return None
+    return directions if not directions.single else Rotation.concatenate([directions])
+
+
+def random_poses(n, rng):
+    """
+    ``n`` orientations (body to world) uniformly distributed over all rotations.
+
+    Poses for ``simulate_session`` that fix the heading too, so that sessions do not
+    depend on how scipy's ``align_vectors`` picks the rotation about gravity.
+
+    :returns: Rotation of length n.
+    """
+    return Rotation.from_quat(rng.standard_normal((n, 4)))
+
+
 def session_length(directions, hold_s=3.0, move_s=1.5, rate_hz=100.0):
     """Return the number of samples ``simulate_session`` gives for these arguments."""
-    n_pose = len(np.asarray(directions, float).reshape(-1, 3))
+    poses = _poses(directions)
+    n_pose = len(poses) if poses is not None else len(
+        np.asarray(directions, float).reshape(-1, 3))
     holds = np.broadcast_to(np.asarray(hold_s, float), (n_pose,))
     return sum(n for _, _, n in _segments(n_pose, holds, move_s, rate_hz))
 
@@ -380,12 +401,15 @@ def iter_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=100.0,
 
     :returns: generator of Session.
     """
+    poses = _poses(directions)
+    if poses is not None:                   # full orientations, body to world
+        directions = poses.inv().apply([0.0, 0.0, 1.0]).reshape(-1, 3)
     directions = np.asarray(directions, float).reshape(-1, 3)
     directions = directions / np.linalg.norm(directions, axis=1, keepdims=True)
     n_pose = len(directions)
     holds = np.broadcast_to(np.asarray(hold_s, float), (n_pose,))
     dt = 1.0 / rate_hz
-    rots = _rotation_to(directions)
+    rots = _rotation_to(directions) if poses is None else poses
     segments = _segments(n_pose, holds, move_s, rate_hz)
     total = sum(n for _, _, n in segments)
     if callable(temperature):
@@ -564,7 +588,9 @@ def simulate_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=10
     The whole session in memory; ``iter_session`` gives the same in pieces.
 
     :param sensor: SensorModel that produces the raw readings.
-    :param directions: (P, 3) unit gravity directions in the body frame, one per pose.
+    :param directions: (P, 3) unit gravity directions in the body frame, one per pose
+        (the rotation about gravity is scipy's choice), or a Rotation of P poses (body
+        to world, world z up) that fixes it (e.g. ``random_poses``).
     :param rng: numpy Generator.
     :param hold_s: seconds each pose is held still (scalar or (P,) array).
     :param move_s: seconds each move between poses takes.
