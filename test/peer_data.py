@@ -23,6 +23,13 @@ IMU_TK_REFERENCE = {'inverse_scale': np.array([414.459, 412.010, 414.649]),
 """imu_tk's own result on xsens_acc.mat: counts/(m/s²), counts, m/s²."""
 
 
+IMU_TK_GYRO_GAIN = np.array([4778.0, 4758.0, 4766.0])
+"""Xsens factory gyroscope gains quoted by imu_tk_matlab, counts/(rad/s) (diagonal)."""
+
+MPU6050_GYRO_LSB = np.radians(1.0 / 131.0)
+"""MPU-6050 gyroscope step at ±250 °/s, rad/s per count."""
+
+
 def available(name):
     """Tell whether the peer data folder ``name`` is present."""
     return os.path.isdir(os.path.join(DATA, name))
@@ -41,6 +48,26 @@ def mpu6050():
     t = np.arange(len(table)) / 100.0
     return Samples(t, table[:, :3] / 16384.0 * 9.80665,
                    gyro=np.radians(table[:, 3:6] / 131.0))
+
+
+def imu_tk_imu(gain=4770.0):
+    """
+    Xsens MTi accelerometer and gyroscope of imu_tk (same session, same time stamps).
+
+    Acceleration in raw counts; gyro as (counts - 32768) / ``gain`` rad/s, so a fitted
+    gyroscope T times ``gain`` is the gain in counts/(rad/s).
+    """
+    acc = np.loadtxt(os.path.join(DATA, 'imu_tk', 'xsens_acc.mat'))
+    gyr = np.loadtxt(os.path.join(DATA, 'imu_tk', 'xsens_gyro.mat'))
+    return Samples(acc[:, 0], acc[:, 1:4], gyro=(gyr[:, 1:4] - 32768.0) / gain)
+
+
+def mpu6050_turn():
+    """MPU-6050 validation recording imu_90_x_rot.csv: still, one turn, still (as mpu6050)."""
+    path = os.path.join(DATA, 'mpu6050_tomisuarez2', 'imu_90_x_rot.csv')
+    table = np.loadtxt(path, delimiter=',', skiprows=5)
+    return Samples(np.arange(len(table)) / 100.0, table[:, :3] / 16384.0 * 9.80665,
+                   gyro=table[:, 3:6] * MPU6050_GYRO_LSB)
 
 
 def imucal_ferraris():

@@ -7,8 +7,9 @@ import numpy as np
 
 from .errors import InputError
 
-MAX_ABS = {'time': 1e12, 'acceleration': 1e6, 'temperature': 1e3, 'gyro': 1e6}
-"""Largest magnitude believed per quantity (s, m/s² or raw counts, °C, rad/s)."""
+MAX_ABS = {'time': 1e12, 'acceleration': 1e6, 'temperature': 1e3, 'gyro': 1e6,
+           'magnetic field': 1e6}
+"""Largest magnitude believed per quantity (s, m/s² or raw counts, °C, rad/s, µT)."""
 
 
 def _bad_rows(values, limit):
@@ -27,12 +28,16 @@ class Samples:
     :param accel: raw specific force, shape (N, 3), m/s².
     :param temp: sensor temperature, shape (N,), °C, or None when not recorded.
     :param gyro: angular rate, shape (N, 3), rad/s, or None when not recorded.
+    :param mag: magnetic field, shape (N, 3), µT in the accelerometer's frame, or None
+        when not recorded; a row of three NaN where that row has no magnetometer sample
+        (the magnetometer runs slower than the accelerometer).
     """
 
     t: np.ndarray
     accel: np.ndarray
     temp: Optional[np.ndarray] = None
     gyro: Optional[np.ndarray] = None
+    mag: Optional[np.ndarray] = None
 
     def __post_init__(self):
         self.t = np.asarray(self.t, dtype=float).reshape(-1)
@@ -48,6 +53,10 @@ class Samples:
             self.gyro = np.asarray(self.gyro, dtype=float).reshape(-1, 3)
             if len(self.gyro) != n:
                 raise InputError(f'{len(self.gyro)} gyro rows for {n} times')
+        if self.mag is not None:
+            self.mag = np.asarray(self.mag, dtype=float).reshape(-1, 3)
+            if len(self.mag) != n:
+                raise InputError(f'{len(self.mag)} magnetometer rows for {n} times')
 
     def __len__(self):
         return len(self.t)
@@ -70,9 +79,25 @@ class Samples:
                     f'{int(bad.sum())} rows hold NaN, infinite or implausibly large '
                     f'(beyond {MAX_ABS[what]:g}) {what} (first at row {first}, '
                     f't={self.t[first]:.3f} s); clean or drop them')
+        if self.mag is not None:
+            # Rows without a magnetometer sample are all NaN; anything else must be sane.
+            bad = _bad_rows(self.mag[~np.all(np.isnan(self.mag), axis=1)],
+                            MAX_ABS['magnetic field'])
+            if bad.any():
+                raise InputError(
+                    f'{int(bad.sum())} magnetometer rows hold a partly missing, infinite or '
+                    f'implausibly large (beyond {MAX_ABS["magnetic field"]:g} µT) field; '
+                    'a row without a sample must leave all three cells empty')
         if np.any(np.diff(self.t) < 0):
             raise InputError('time column is not in increasing order')
         return self
+
+    @property
+    def mag_rows(self):
+        """Boolean (N,) rows holding a magnetometer sample (all False without one)."""
+        if self.mag is None:
+            return np.zeros(len(self), bool)
+        return np.all(np.isfinite(self.mag), axis=1)
 
     @property
     def rate_hz(self):
@@ -87,4 +112,5 @@ class Samples:
         return Samples(
             self.t[index], self.accel[index],
             None if self.temp is None else self.temp[index],
-            None if self.gyro is None else self.gyro[index])
+            None if self.gyro is None else self.gyro[index],
+            None if self.mag is None else self.mag[index])

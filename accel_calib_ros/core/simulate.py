@@ -12,9 +12,20 @@ The forward model, for true specific force ``a`` (m/s², body frame), temperatur
 ``T`` is upper triangular (scale times non-orthogonality, Sun & Xu eq. 1-4).
 Each physical effect has its own field and is off when that field is zero, so
 effects can be switched on one at a time (the model-gap workflow relies on it).
+
+The gyroscope and the magnetometer (spec sections 9 and 10), for the true body rate
+``w`` (rad/s) and the local Earth field ``f`` in the body (accelerometer) frame (µT)::
+
+    raw_gyro = clip(gyro_T @ w + gyro_bias + noise, ±gyro_full_scale)
+    raw_mag  = mag.T @ mag.R @ f + mag.hard_iron + noise     (at the magnetometer's rate)
+
+Both are off (identity, no clipping, no magnetometer) by default, and then a session
+is bit for bit the one this module gave before they existed: their random numbers
+come from a generator spawned from the session's, only when they are switched on.
 """
 
 from dataclasses import dataclass, field, replace
+from typing import Optional
 import warnings
 
 import numpy as np
@@ -49,6 +60,11 @@ class SensorModel:
     :param temp_ref: reference temperature of ``T`` and ``bias``, °C.
     :param gyro_bias: (3,) gyroscope offset, rad/s (raw rate = true + gyro_bias).
     :param gyro_noise_std: (3,) gyroscope white noise per sample, rad/s.
+    :param gyro_T: (3, 3) gyroscope scale x misalignment, raw rate = gyro_T @ true + bias.
+    :param gyro_full_scale: the gyroscope's range, rad/s: readings clip at ± this
+        (inf: no clipping).
+    :param gyro_lsb: gyroscope ADC step, rad/s (0 disables quantisation).
+    :param magnetometer: MagnetometerModel, or None for a sensor without one.
     """
 
     T: np.ndarray = field(default_factory=lambda: np.eye(3))
@@ -62,9 +78,14 @@ class SensorModel:
     temp_ref: float = 25.0
     gyro_bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
     gyro_noise_std: np.ndarray = field(default_factory=lambda: np.full(3, 0.002))
+    gyro_T: np.ndarray = field(default_factory=lambda: np.eye(3))
+    gyro_full_scale: float = float('inf')
+    gyro_lsb: float = 0.0
+    magnetometer: Optional['MagnetometerModel'] = None
 
     def __post_init__(self):
         self.T = np.asarray(self.T, dtype=float).reshape(3, 3)
+        self.gyro_T = np.asarray(self.gyro_T, dtype=float).reshape(3, 3)
         for name in ('bias', 'noise_std', 'nonlinearity', 'bias_tempco',
                      'scale_tempco', 'bias_drift', 'gyro_noise_std'):
             setattr(self, name, _vec3(getattr(self, name)))
@@ -146,6 +167,120 @@ def mpu9250_like(rng, rate_hz=100.0, effects=()):
     return model
 
 
+AK8963_LSB_UT = 0.15
+"""AK8963 16-bit output step, µT per count."""
+
+
+@dataclass
+class MagnetometerModel:
+    """
+    True error parameters of a simulated magnetometer (AK8963-like, spec section 10).
+
+    ``raw = T @ R @ field_body + hard_iron + noise``, sampled at ``rate_hz``.
+
+    :param T: (3, 3) soft iron, dimensionless (any matrix: symmetric for a physical
+        soft-iron effect; the fit reports the equivalent upper-triangular form, see
+        ``core.magnetometer.canonical``).
+    :param hard_iron: (3,) offset, µT.
+    :param R: (3, 3) rotation from the accelerometer frame to the magnetometer's.
+    :param noise_std: (3,) white noise per sample, µT.
+    :param lsb: ADC step, µT (0 disables quantisation).
+    :param rate_hz: magnetometer sample rate, Hz; rows between its samples are NaN.
+    """
+
+    T: np.ndarray = field(default_factory=lambda: np.eye(3))
+    hard_iron: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    R: np.ndarray = field(default_factory=lambda: np.eye(3))
+    noise_std: np.ndarray = field(default_factory=lambda: np.full(3, 0.4))
+    lsb: float = 0.0
+    rate_hz: float = 100.0
+
+    def __post_init__(self):
+        self.T = np.asarray(self.T, dtype=float).reshape(3, 3)
+        self.R = np.asarray(self.R, dtype=float).reshape(3, 3)
+        self.hard_iron = _vec3(self.hard_iron)
+        self.noise_std = _vec3(self.noise_std)
+
+    def distort(self, field_body):
+        """
+        Noise-free raw reading for the field in the body frame.
+
+        :param field_body: (N, 3) µT, accelerometer frame.
+        :returns: (N, 3) µT, magnetometer frame.
+        """
+        return np.atleast_2d(field_body) @ (self.T @ self.R).T + self.hard_iron
+
+
+@dataclass
+class EarthField:
+    """
+    The local geomagnetic field of a simulated session.
+
+    World frame: x north (magnetic), z up (the frame in which gravity reads +g).
+
+    :param field_uT: magnitude, µT.
+    :param dip_deg: inclination below the horizontal, degrees (positive: the field
+        points down, northern hemisphere); the accelerometer's up direction and the
+        field then satisfy ``up · field / |field| = -sin(dip)``.
+    """
+
+    field_uT: float = 48.0
+    dip_deg: float = 60.0
+
+    def world(self):
+        """Field vector (3,) in the world frame, µT."""
+        dip = np.radians(self.dip_deg)
+        return self.field_uT * np.array([np.cos(dip), 0.0, -np.sin(dip)])
+
+
+def _small_rotation(rng, angle_deg):
+    """Return a rotation matrix about a random axis by ``angle_deg`` x U(-1, 1)."""
+    axis = rng.standard_normal(3)
+    axis *= np.radians(angle_deg) * rng.uniform(-1, 1) / np.linalg.norm(axis)
+    return Rotation.from_rotvec(axis).as_matrix()
+
+
+def with_gyro_errors(sensor, rng, full_scale=None, lsb=0.0):
+    """
+    Return a copy of ``sensor`` with a datasheet-sized gyroscope scale and misalignment.
+
+    MPU-9250 gyroscope: sensitivity tolerance ±3 % (diagonal of ``gyro_T``) and
+    cross-axis sensitivity ±2 % (its six off-diagonal terms), each uniform.
+
+    :param rng: numpy Generator (only it is drawn from).
+    :param full_scale: range in rad/s at which readings clip (None: no clipping), e.g.
+        ``np.radians(250)`` for the MPU's ±250 °/s setting.
+    :param lsb: ADC step in rad/s (0: none), e.g. ``np.radians(1 / 131)``.
+    :returns: SensorModel.
+    """
+    gyro_T = np.diag(1.0 + rng.uniform(-1, 1, 3) * 0.03)
+    off = ~np.eye(3, dtype=bool)
+    gyro_T[off] = rng.uniform(-1, 1, 6) * 0.02
+    return replace(sensor, gyro_T=gyro_T,
+                   gyro_full_scale=float('inf') if full_scale is None else float(full_scale),
+                   gyro_lsb=float(lsb))
+
+
+def ak8963_like(rng, hard_iron_uT=30.0, soft_iron=0.05, misalignment_deg=2.0):
+    """
+    Draw an AK8963-like magnetometer mounted on a robot.
+
+    Hard iron up to ±``hard_iron_uT`` per axis (board and robot magnetisation), a
+    symmetric soft iron with ±``soft_iron`` on the diagonal and half that off it, a
+    residual misalignment to the accelerometer of up to ``misalignment_deg`` about a
+    random axis (after the driver's axis swap), noise 0.4 µT, 0.15 µT steps, 100 Hz.
+
+    :param rng: numpy Generator (only it is drawn from).
+    :returns: MagnetometerModel.
+    """
+    T = np.diag(1.0 + rng.uniform(-1, 1, 3) * soft_iron)
+    upper = np.triu_indices(3, 1)
+    T[upper] = rng.uniform(-1, 1, 3) * soft_iron / 2.0
+    T.T[upper] = T[upper]
+    return MagnetometerModel(T=T, hard_iron=rng.uniform(-1, 1, 3) * hard_iron_uT,
+                             R=_small_rotation(rng, misalignment_deg), lsb=AK8963_LSB_UT)
+
+
 def random_directions(n, rng):
     """``n`` unit vectors uniformly distributed on the sphere, shape (n, 3)."""
     v = rng.standard_normal((n, 3))
@@ -196,7 +331,12 @@ class Session:
     """
     A simulated calibration session: samples plus the truth behind them.
 
-    ``pose`` is the index of the held pose for each sample, -1 while moving.
+    ``pose`` is the index of the held pose for each sample, -1 while moving. The
+    truth: ``sensor`` (accelerometer, gyroscope and magnetometer errors), ``gravity``
+    (m/s²), ``true_accel`` (N, 3) specific force (m/s²), ``true_rate`` (N, 3) body rate
+    (rad/s, held from each sample to the next: integrating it sample by sample gives
+    the simulated orientations exactly), ``earth_field`` and ``true_field`` (N, 3) the
+    field in the body frame, µT (None without a magnetometer).
     """
 
     samples: Samples
@@ -205,6 +345,9 @@ class Session:
     directions: np.ndarray
     sensor: SensorModel
     gravity: float
+    true_rate: Optional[np.ndarray] = None
+    earth_field: Optional[EarthField] = None
+    true_field: Optional[np.ndarray] = None
 
 
 def _segments(n_pose, holds, move_s, rate_hz):
@@ -217,16 +360,37 @@ def _segments(n_pose, holds, move_s, rate_hz):
     return out
 
 
+def _poses(directions):
+    """Return ``directions`` as a stack of Rotations when it holds poses, else None."""
+    if not isinstance(directions, Rotation):
+        return None
+    return directions if not directions.single else Rotation.concatenate([directions])
+
+
+def random_poses(n, rng):
+    """
+    ``n`` orientations (body to world) uniformly distributed over all rotations.
+
+    Poses for ``simulate_session`` that fix the heading too, so that sessions do not
+    depend on how scipy's ``align_vectors`` picks the rotation about gravity.
+
+    :returns: Rotation of length n.
+    """
+    return Rotation.from_quat(rng.standard_normal((n, 4)))
+
+
 def session_length(directions, hold_s=3.0, move_s=1.5, rate_hz=100.0):
     """Return the number of samples ``simulate_session`` gives for these arguments."""
-    n_pose = len(np.asarray(directions, float).reshape(-1, 3))
+    poses = _poses(directions)
+    n_pose = len(poses) if poses is not None else len(
+        np.asarray(directions, float).reshape(-1, 3))
     holds = np.broadcast_to(np.asarray(hold_s, float), (n_pose,))
     return sum(n for _, _, n in _segments(n_pose, holds, move_s, rate_hz))
 
 
 def iter_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=100.0,
                  gravity=G0, temperature=25.0, motion_accel=1.5, lead_s=None,
-                 chunk_rows=CHUNK_ROWS):
+                 chunk_rows=CHUNK_ROWS, earth_field=None, tremor_deg=0.0):
     """
     Simulate a session piece by piece, in bounded memory (see ``simulate_session``).
 
@@ -237,12 +401,15 @@ def iter_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=100.0,
 
     :returns: generator of Session.
     """
+    poses = _poses(directions)
+    if poses is not None:                   # full orientations, body to world
+        directions = poses.inv().apply([0.0, 0.0, 1.0]).reshape(-1, 3)
     directions = np.asarray(directions, float).reshape(-1, 3)
     directions = directions / np.linalg.norm(directions, axis=1, keepdims=True)
     n_pose = len(directions)
     holds = np.broadcast_to(np.asarray(hold_s, float), (n_pose,))
     dt = 1.0 / rate_hz
-    rots = _rotation_to(directions)
+    rots = _rotation_to(directions) if poses is None else poses
     segments = _segments(n_pose, holds, move_s, rate_hz)
     total = sum(n for _, _, n in segments)
     if callable(temperature):
@@ -259,6 +426,22 @@ def iter_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=100.0,
     up = np.array([0.0, 0.0, gravity])
     gyro_bias = np.asarray(getattr(sensor, 'gyro_bias', np.zeros(3)), float)  # raw = true + b
     gyro_noise = np.asarray(getattr(sensor, 'gyro_noise_std', 0.002), float)  # rad/s
+    gyro_T = np.asarray(getattr(sensor, 'gyro_T', np.eye(3)), float)
+    scaled = not np.array_equal(gyro_T, np.eye(3))
+    full_scale = float(getattr(sensor, 'gyro_full_scale', float('inf')))
+    gyro_lsb = float(getattr(sensor, 'gyro_lsb', 0.0))
+    mag = getattr(sensor, 'magnetometer', None)
+    if mag is not None and earth_field is None:
+        earth_field = EarthField()
+    # The new effects draw from their own generator, spawned only when they are on, so
+    # that switching them off leaves every other draw (and the session) unchanged.
+    extra = _spawn(rng) if (mag is not None or tremor_deg > 0) else None
+    wobble = _Wobble(segments, tremor_deg, extra) if tremor_deg > 0 else None
+
+    def hold_rotation(index, k, i):
+        """Rotation of held pose ``k`` (segment ``index``) at its sample indices ``i``."""
+        return rots[k] * Rotation.from_rotvec(wobble(index, i))
+
     pieces, rows = [], 0
     first = 0
     gyro_world_last = np.zeros(3)
@@ -274,9 +457,13 @@ def iter_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=100.0,
             t = (first + np.arange(a, b)) * dt
             if b < n:
                 after = slerp(s[b]) if moving else None
+                if wobble is not None and not moving:
+                    after = hold_rotation(index, k, np.array([b]))[0]
             elif index + 1 < len(segments):     # the first rotation of the next segment
                 k_next, move_next, n_next = segments[index + 1]
                 after = rots[k_next]
+                if wobble is not None and not move_next:
+                    after = hold_rotation(index + 1, k_next, np.array([0]))[0]
                 if move_next:
                     pair = Rotation.concatenate([rots[k_next - 1], rots[k_next]])
                     after = Slerp([0.0, 1.0], pair)(1.0 / (n_next + 1))
@@ -291,6 +478,13 @@ def iter_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=100.0,
                 if m > 1:
                     gyro_world[:-1] = (rot[1:] * inverse[:-1]).as_rotvec() / dt
                 last = rot[-1]
+            elif wobble is not None:            # held by a trembling hand
+                rot = hold_rotation(index, k, np.arange(a, b))
+                inverse = rot.inv()
+                true_accel = inverse.apply(up)
+                if m > 1:
+                    gyro_world[:-1] = (rot[1:] * inverse[:-1]).as_rotvec() / dt
+                last = rot[-1]
             else:                               # held still: one rotation, no turn rate
                 inverse = rots[k].inv()
                 true_accel = np.tile(inverse.apply(up), (m, 1))
@@ -300,37 +494,103 @@ def iter_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=100.0,
             elif b == n and index + 1 == len(segments):  # the very last sample
                 gyro_world[-1] = gyro_world[-2] if m > 1 else gyro_world_last
             gyro_world_last = gyro_world[-1]
-            gyro = inverse.apply(gyro_world) + rng.standard_normal((m, 3)) * gyro_noise
+            true_rate = inverse.apply(gyro_world)
+            gyro = (true_rate @ gyro_T.T if scaled else true_rate) \
+                + rng.standard_normal((m, 3)) * gyro_noise
             gyro += gyro_bias
+            if gyro_lsb > 0:
+                gyro = np.round(gyro / gyro_lsb) * gyro_lsb
+            if np.isfinite(full_scale):
+                np.clip(gyro, -full_scale, full_scale, out=gyro)
             temp = temp_at(t)
             raw = sensor.measure(true_accel, rng, temp, t)
             pose = np.full(m, -1 if moving else k)
-            pieces.append((t, raw, temp, gyro, true_accel, pose))
+            field_body = raw_mag = None
+            if mag is not None:
+                field_body = np.broadcast_to(inverse.apply(earth_field.world()), (m, 3))
+                raw_mag = _measure_mag(mag, field_body, t, dt, extra)
+            pieces.append((t, raw, temp, gyro, true_accel, pose, true_rate, field_body,
+                           raw_mag))
             rows += m
             if rows >= chunk_rows:
-                yield _join(pieces, directions, sensor, gravity)
+                yield _join(pieces, directions, sensor, gravity, earth_field)
                 pieces, rows = [], 0
         first += n
     if pieces:
-        yield _join(pieces, directions, sensor, gravity)
+        yield _join(pieces, directions, sensor, gravity, earth_field)
 
 
-def _join(pieces, directions, sensor, gravity):
-    """Concatenate (t, raw, temp, gyro, true_accel, pose) pieces into one Session."""
-    t, raw, temp, gyro, true_accel, pose = (
-        np.concatenate(column) if len(pieces) > 1 else column[0] for column in zip(*pieces))
-    return Session(Samples(t, raw, temp, gyro), true_accel, pose, directions, sensor, gravity)
+def _join(pieces, directions, sensor, gravity, earth_field=None):
+    """Concatenate (t, raw, temp, gyro, true_accel, pose, ...) pieces into one Session."""
+    (t, raw, temp, gyro, true_accel, pose, true_rate, field_body, raw_mag) = (
+        None if column[0] is None else np.concatenate(column) if len(pieces) > 1
+        else column[0] for column in zip(*pieces))
+    return Session(Samples(t, raw, temp, gyro, raw_mag), true_accel, pose, directions,
+                   sensor, gravity, true_rate, earth_field,
+                   None if field_body is None else np.array(field_body))
+
+
+def _spawn(rng):
+    """Return a child generator of ``rng`` that leaves ``rng``'s own stream untouched."""
+    try:
+        return rng.spawn(1)[0]
+    except (AttributeError, TypeError, ValueError):     # numpy < 1.25 or no SeedSequence
+        return np.random.default_rng(rng.bit_generator.random_raw())
+
+
+def _measure_mag(mag, field_body, t, dt, rng):
+    """
+    Raw magnetometer rows (m, 3) µT for the body field, NaN where it takes no sample.
+
+    A row holds a sample when it is the first since the magnetometer's clock ticked
+    (``floor(t x rate_hz)`` changed), so the pattern depends only on time.
+    """
+    raw = mag.distort(field_body) + rng.standard_normal(field_body.shape) * mag.noise_std
+    if mag.lsb > 0:
+        raw = np.round(raw / mag.lsb) * mag.lsb
+    tick = np.floor(np.round(t * mag.rate_hz, 6))
+    before = np.floor(np.round((t - dt) * mag.rate_hz, 6))
+    raw[(tick == before) & (t > 0)] = np.nan
+    return raw
+
+
+class _Wobble:
+    """
+    Hand tremor during holds: a small smooth rotation that vanishes at both ends.
+
+    For hold segment ``index`` of n samples, the wobble rotation vector (body frame)
+    at sample i is ``sum_j c_j sin(pi j s)`` with ``s = (i + 1) / (n + 1)``, j = 1..3,
+    ``c_j`` ~ N(0, (amp / j)²) per axis; ``amp`` makes the RMS wobble angle
+    ``tremor_deg``. All coefficients are drawn up front (chunk-independent).
+    """
+
+    MODES = 3
+
+    def __init__(self, segments, tremor_deg, rng):
+        self.n = [n for _, _, n in segments]
+        j = np.arange(1, self.MODES + 1)
+        amp = np.radians(tremor_deg) / np.sqrt(1.5 * np.sum(1.0 / j ** 2))
+        self.coef = rng.standard_normal((len(segments), self.MODES, 3)) \
+            * (amp / j)[None, :, None]
+        self.j = j
+
+    def __call__(self, index, i):
+        s = (np.asarray(i, float) + 1.0) / (self.n[index] + 1.0)
+        return np.sin(np.pi * np.outer(s, self.j)) @ self.coef[index]
 
 
 def simulate_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=100.0,
-                     gravity=G0, temperature=25.0, motion_accel=1.5, lead_s=None):
+                     gravity=G0, temperature=25.0, motion_accel=1.5, lead_s=None,
+                     earth_field=None, tremor_deg=0.0):
     """
     Simulate someone turning the sensor through a sequence of held poses.
 
     The whole session in memory; ``iter_session`` gives the same in pieces.
 
     :param sensor: SensorModel that produces the raw readings.
-    :param directions: (P, 3) unit gravity directions in the body frame, one per pose.
+    :param directions: (P, 3) unit gravity directions in the body frame, one per pose
+        (the rotation about gravity is scipy's choice), or a Rotation of P poses (body
+        to world, world z up) that fixes it (e.g. ``random_poses``).
     :param rng: numpy Generator.
     :param hold_s: seconds each pose is held still (scalar or (P,) array).
     :param move_s: seconds each move between poses takes.
@@ -340,10 +600,16 @@ def simulate_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=10
         the session, or a callable of time in seconds.
     :param motion_accel: peak hand acceleration during a move, m/s².
     :param lead_s: still time before the first pose is reached (default ``hold_s``).
+    :param earth_field: EarthField the magnetometer sees (default ``EarthField()``,
+        48 µT at 60° dip); used only when ``sensor.magnetometer`` is set.
+    :param tremor_deg: RMS angle by which a trembling hand turns the sensor while it
+        holds a pose, degrees (0: held perfectly still). The wobble vanishes at the
+        ends of each hold; accelerometer and gyroscope see it consistently.
     :returns: Session.
     """
     parts = list(iter_session(sensor, directions, rng, hold_s, move_s, rate_hz, gravity,
-                              temperature, motion_accel, lead_s, chunk_rows=1 << 62))
+                              temperature, motion_accel, lead_s, chunk_rows=1 << 62,
+                              earth_field=earth_field, tremor_deg=tremor_deg))
     return parts[0]
 
 
