@@ -17,7 +17,7 @@ import sys
 import time
 
 from accel_calib_ros.core import simulate
-from accel_calib_ros.core.calibration import calibrate
+from accel_calib_ros.core.accel.calibration import calibrate
 from accel_calib_ros.core.gyro import fit_gyro, integrate
 from accel_calib_ros.core.magnetometer import canonical, fit_magnetometer
 from accel_calib_ros.core.windows import detect_static_windows

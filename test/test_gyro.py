@@ -1,7 +1,7 @@
 """Gyroscope scale and misalignment from the moves between static windows (spec §9)."""
 
 from accel_calib_ros.core import simulate
-from accel_calib_ros.core.calibration import calibrate
+from accel_calib_ros.core.accel.calibration import calibrate
 from accel_calib_ros.core.errors import CalibrationError, InputError
 from accel_calib_ros.core.gyro import (
     _Moves, clipped, fit_gyro, integrate, predicted_accuracy)

@@ -1,7 +1,7 @@
 """Magnetometer soft/hard iron, alignment to the accelerometer, field and dip (spec §10)."""
 
 from accel_calib_ros.core import simulate
-from accel_calib_ros.core.calibration import calibrate
+from accel_calib_ros.core.accel.calibration import calibrate
 from accel_calib_ros.core.errors import CalibrationError, InputError
 from accel_calib_ros.core.magnetometer import (
     _linear_start, canonical, correct_field, fit_alignment, fit_magnetometer, sphere_coverage)

@@ -54,7 +54,7 @@ from typing import Optional
 
 import numpy as np
 
-from .calibration import estimate_gyro_bias
+from .accel.calibration import estimate_gyro_bias
 from .errors import CalibrationError, InputError
 from .windows import detect_static_windows
 
@@ -170,7 +170,7 @@ class GyroCalibration:
         return np.linalg.solve(self.T, (raw - self.bias).T).T
 
 
-def _skew(v):
+def skew(v):
     """Cross-product matrices (M, 3, 3) of vectors (M, 3)."""
     out = np.zeros(v.shape[:-1] + (3, 3))
     out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
@@ -192,7 +192,7 @@ def _exp_and_jacobian(phi):
     a = np.where(small, 1.0 - th2 / 6.0, np.sin(safe) / safe)
     b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(safe)) / safe ** 2)
     c = np.where(small, 1.0 / 6.0 - th2 / 120.0, (safe - np.sin(safe)) / safe ** 3)
-    kx = _skew(phi)
+    kx = skew(phi)
     k2 = kx @ kx
     eye = np.eye(3)
     rot = eye + a[:, None, None] * kx + b[:, None, None] * k2
@@ -336,7 +336,7 @@ class _Moves:
         predicted = np.einsum('mji,mj->mi', C, self.g0)
         r = np.einsum('mki,mi->mk', self.basis, predicted)
         Q = np.einsum('mki,mij,mja->mka', self.basis, np.transpose(C, (0, 2, 1)),
-                      _skew(self.g0))
+                      skew(self.g0))
         J = np.einsum('mka,mabc->mkbc', Q, A).reshape(m, 2, 9)
         Jb = -np.einsum('mka,mab,bc->mkc', Q, B, K)
         return r, J, Jb, C

@@ -51,9 +51,9 @@ from scipy.linalg import rq
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from .accel.ml import fit_ml
 from .errors import CalibrationError, InputError
-from .gyro import _skew, accel_corrector, window_ranges
-from .ml import fit_ml
+from .gyro import accel_corrector, skew, window_ranges
 
 COVERAGE_CELLS = 50
 """Equal-area cells on the sphere for :func:`sphere_coverage` (about 33° across each)."""
@@ -221,7 +221,7 @@ def _dip_residuals(R, dip, up, v):
     s = -np.einsum('ki,ij,kj->k', up, R.T, v)
     s = np.clip(s, -1.0 + 1e-15, 1.0 - 1e-15)
     r = np.arcsin(s) - dip
-    ds = -np.einsum('ki,ij,kjl->kl', up, R.T, _skew(v))
+    ds = -np.einsum('ki,ij,kjl->kl', up, R.T, skew(v))
     J = np.column_stack([ds / np.sqrt(1.0 - s * s)[:, None], -np.ones(len(s))])
     return r, J
 
