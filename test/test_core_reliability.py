@@ -45,12 +45,17 @@ def test_predicted_accuracy_is_scale_free_and_right_on_raw_counts_and_low_noise(
     counts = np.full(20, 200)
     dirs = random_directions(20, rng)
     y = simulate_window_means(sensor, dirs, counts, rng)
-    cal = calibrate(y, G, 'ml', counts, noise_std=sensor.noise_std)
+    # Without the floor (what no averaging removes) the prediction follows the noise.
+    cal = calibrate(y, G, 'ml', counts, noise_std=sensor.noise_std, sigma_floor=0.0)
     assert cal.predicted_accuracy < 1e-4
     per_g = 16384 / G                                   # ±2 g counts per m/s²
-    cal_counts = calibrate(y * per_g, G, 'ml', counts, noise_std=sensor.noise_std * per_g)
-    assert cal_counts.predicted_accuracy == pytest.approx(cal.predicted_accuracy, rel=1e-3)
-    np.testing.assert_allclose(cal_counts.T / per_g, cal.T, rtol=1e-6)
+    for floor in (0.0, None):                           # the floor scales with T too
+        cal = calibrate(y, G, 'ml', counts, noise_std=sensor.noise_std, sigma_floor=floor)
+        cal_counts = calibrate(y * per_g, G, 'ml', counts, noise_std=sensor.noise_std * per_g,
+                               sigma_floor=floor)
+        assert cal_counts.predicted_accuracy == pytest.approx(cal.predicted_accuracy,
+                                                              rel=1e-3)
+        np.testing.assert_allclose(cal_counts.T / per_g, cal.T, rtol=1e-6)
 
 
 def test_fisher_covariance_agrees_with_the_ml_cramer_rao_bound():

@@ -99,8 +99,8 @@ def check_magnitude(si_accel, raw_accel=None, units='m/s2', counts_per_g=None,
     """
     median = median_magnitude(si_accel)
     low, high = PLAUSIBLE_G
-    if not np.isfinite(median) or low * G0 <= median <= high * G0:
-        return
+    if not np.isfinite(median) or median == 0.0 or low * G0 <= median <= high * G0:
+        return              # exactly 0: a stuck sensor, which the commands name as such
     raw = si_accel if raw_accel is None else raw_accel
     raw_median = median_magnitude(raw)
     expected = f'expected about {G0:.2f} m/s² (1 g) for a sensor on Earth'

@@ -28,16 +28,16 @@ windows (the calibration node), ``held_out_check`` cross-validates the finding.
 import numpy as np
 from scipy import stats
 
-from .effects import EFFECTS
-from .evidence import (column_correlation, effect_worst_case_mg, predicted_accuracy_mg,
-                       separation_advice, strongest_correlations, visibility)
+from .effects import EFFECTS, G0
+from .evidence import (column_correlation, effect_worst_case_mg, separation_advice,
+                       strongest_correlations, visibility)
 from .model import conditions_from_windows, fit_model, min_windows, Model, model_start
 from .noise import simulated_null_gaps, window_noise, WindowNoise
 from .probes import residual_probes
 from .result import DiagnoseResult, MIN_EFFECT_MG
 from ..core.accel.calibration import calibrate
 from ..core.errors import CalibrationError
-from ..core.windows import DEFAULTS, detect_static_windows
+from ..core.windows import DEFAULTS, detect_static_windows, MAX_WEIGHT_S
 
 P_SUPPORT = 1e-3
 """Largest F-test p-value for which an added effect counts as supported."""
@@ -86,7 +86,7 @@ def diagnose_windows(windows, baseline='ml', gravity=9.80665, rate_hz=None, rng=
     c = conditions_from_windows(windows, gravity, noise.inflation)
     start_cal = calibrate(c.readings, gravity, baseline, windows.count.astype(float))
     model, fit = fit_model(baseline, [], c, model_start(baseline, start_cal))
-    accuracy = predicted_accuracy_mg(model, fit)
+    accuracy = _fit_accuracy_mg(windows, gravity, baseline, rate_hz)
     threshold = (float(min_effect_mg) if min_effect_mg is not None
                  else max(MIN_EFFECT_MG, accuracy if np.isfinite(accuracy) else 0.0))
     has_temp = bool(np.all(np.isfinite(np.asarray(windows.temp, float))))
@@ -184,6 +184,26 @@ def diagnose_windows(windows, baseline='ml', gravity=9.80665, rate_hz=None, rng=
     fit = result.fits[-1]
     result.null_gaps = simulated_null_gaps(model, fit, c, rng, replicates) if replicates else []
     return result
+
+
+def _fit_accuracy_mg(windows, gravity, baseline, rate_hz):
+    """
+    Return the predicted accuracy ``accel-calib fit`` reports for these windows, mg.
+
+    ``core.accel.calibration.calibrate`` with fit's weights (samples per window, capped
+    at ``MAX_WEIGHT_S`` of data when the rate is known) and noise. For a ``gn`` baseline
+    the share fit charges for the cross-axis terms gn leaves out is not counted: those
+    terms are what this check looks for (``nonorthogonality``), so they must not raise
+    the practical threshold.
+    """
+    from ..core.acceptance import estimation_accuracy
+    weights = windows.weights(MAX_WEIGHT_S, rate_hz)
+    try:
+        cal = calibrate(windows.mean, gravity, baseline, weights, noise_std=windows.noise_std)
+    except (CalibrationError, np.linalg.LinAlgError, ValueError):
+        return float('nan')
+    value = estimation_accuracy(cal)
+    return float(value) * 1000.0 / G0 if value is not None else float('nan')
 
 
 PARTIAL_SHARE = 0.05

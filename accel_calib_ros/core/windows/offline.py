@@ -21,6 +21,8 @@ import numpy as np
 
 from ..errors import CalibrationError, InputError
 
+MAX_WEIGHT_S = 5.0
+"""A window weighs at most this many seconds of samples (see StaticWindows.weights)."""
 DEFAULTS = {'window_s': 0.25, 'min_duration_s': 0.3, 'threshold_factor': 3.0, 'trim_s': 0.1,
             'floor_quantile': 0.02, 'max_rotation_rad_s': float(np.radians(2.0))}
 
