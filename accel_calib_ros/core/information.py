@@ -246,6 +246,8 @@ class CrossAxis:
         windows, m/s², or None when they cannot determine it.
     :param poses: names of the poses that would measure the terms not measured yet
         (best first; empty when all are measured).
+    :param covariance: (9, 9) second moment of the error they cause in the gn fit
+        (the terms themselves and what they alias into its scale and bias).
     """
 
     values: np.ndarray
@@ -255,10 +257,11 @@ class CrossAxis:
     distinct: int
     ml_accuracy: float = None
     poses: tuple = ()
+    covariance: np.ndarray = None
 
     @property
     def mean_square(self):
-        """Return the (3,) posterior mean square of each term (the covariance diagonal)."""
+        """Return the (3,) posterior mean square of each term."""
         return self.values ** 2 + self.std ** 2
 
     @property
@@ -334,14 +337,38 @@ def cross_axis_allowance(info, readings, weights=None, noise_std=None, floor=Non
                                                           1.0)
     else:
         measured[:] = False
+    covariance = _misfit_covariance(info, values, std)
     M = sphere_average_matrix(info.T, info.gravity)
-    accuracy = math.sqrt(max(float(np.sum(np.diag(M)[k] * (values ** 2 + std ** 2))), 0.0))
+    accuracy = math.sqrt(max(float(np.sum(M * covariance)), 0.0))
     poses = ()
     if not measured.all():          # the poses that determine the 9-parameter model
         ml_info = Information(base.T, base.bias, base.gravity, 'ml', base.directions,
                               base.rows, base.variance, base.inflation)
         poses = tuple(name for name, _, _ in poses_to_add(ml_info, 3))
-    return CrossAxis(values, std, measured, accuracy, distinct, ml_accuracy, poses)
+    return CrossAxis(values, std, measured, accuracy, distinct, ml_accuracy, poses, covariance)
+
+
+def _misfit_covariance(info, values, std):
+    """
+    Second moment (9, 9) of the error the cross-axis terms c cause in a ``gn`` fit.
+
+    gn fits the diagonal terms d with c held at zero, so to first order it returns
+    ``d + A c`` (A the alias matrix of the weighted least squares: what the misfit of c
+    does to d on these windows) and ``0`` for c: its error is ``L c`` with ``L = [A; -I]``,
+    whose second moment is ``L E[c cᵀ] Lᵀ`` with ``E[c cᵀ] = m mᵀ + diag(s²)``. On a
+    balanced design (the six faces, all 26 poses) A is zero; on a lopsided one the
+    cross-axis terms also spoil the scale and bias gn reports.
+    """
+    gn, k = list(GN_INDEX), list(CROSS_AXIS_INDEX)
+    weights = 1.0 / info.variance[:, None]
+    Hd, Hc = info.rows[:, gn], info.rows[:, k]
+    inverse = _inverse(Hd.T @ (weights * Hd))
+    alias = np.zeros((6, 3)) if inverse is None else inverse @ (Hd.T @ (weights * Hc))
+    L = np.zeros((9, 3))
+    L[gn] = alias
+    L[k] = -np.eye(3)
+    second = np.outer(values, values) + np.diag(std ** 2)
+    return L @ second @ L.T
 
 
 def poses_to_add(info, count=3, near_deg=NEAR_DEG, extra=0.0, faces_first=False):

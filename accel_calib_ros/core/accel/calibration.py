@@ -200,7 +200,7 @@ def accuracy_from_windows(cal, y, weights=None, noise_std=None, sigma_floor=None
     :param noise_std: (3,) per-sample noise, m/s², or None.
     :param sigma_floor: error of a window mean no averaging removes, m/s².
     """
-    from ..information import cross_axis_allowance, CROSS_AXIS_INDEX, information
+    from ..information import cross_axis_allowance, information
     with np.errstate(all='ignore'):
         info = information(y, cal.T, cal.bias, cal.gravity, cal.method, weights, noise_std,
                            sigma_floor)
@@ -212,8 +212,7 @@ def accuracy_from_windows(cal, y, weights=None, noise_std=None, sigma_floor=None
             return cal
         if cal.method == 'gn':
             cal.cross_axis = cross_axis_allowance(info, y, weights, noise_std, sigma_floor)
-            k = list(CROSS_AXIS_INDEX)
-            cov[k, k] = cal.cross_axis.mean_square
+            cov = cov + cal.cross_axis.covariance
         cal.covariance = cov
         acc = predicted_accuracy(cal.T, cov, cal.gravity)
     cal.predicted_accuracy = acc if np.isfinite(acc) else float('inf')
