@@ -54,10 +54,11 @@ def check_geometry(readings, method, weights=None, noise_std=None, sigma_floor=N
     centred = readings - _direction_centre(readings) if n else readings
     hint = {'weights': weights, 'noise_std': noise_std, 'sigma_floor': sigma_floor}
     if n < need_obs:
+        dirs = distinct_directions(centred, 15.0, limit=need_dirs) if n else 0
         raise CalibrationError(
             f'{n} static observations; method {method} needs at least {need_obs} '
             f'in {need_dirs} distinct orientations: '
-            + _poses_hint(readings, method, need_obs - n, **hint))
+            + _poses_hint(readings, method, max(need_obs - n, need_dirs - dirs), **hint))
     dirs = distinct_directions(centred, 15.0, limit=need_dirs)
     if dirs < need_dirs:
         faces = not missing_faces(centred, 15.0)
@@ -126,23 +127,33 @@ def _poses_hint(readings, method, count, **kw):
             + ' (still, a few seconds each) and record again')
 
 
+CONE_DEG = 45.0
+"""Readings all within this angle of one direction from the origin may hold an offset."""
+
+
 def _direction_centre(readings):
     """
     Return the point (3,) from which the readings' directions are taken.
 
-    Static readings lie on the gravity ellipsoid around the bias: of the origin (readings in
-    physical units, small bias) and the mid-range (raw counts with an offset, e.g. unsigned
-    ADC codes), the one from which the readings are most nearly equidistant. The noise
-    cloud of a single pose is not equidistant from its own mid-range, so it stays one
-    direction.
+    Static readings lie on the gravity ellipsoid around the bias. In physical units the
+    bias is small and the origin is the centre. Raw codes with an offset (e.g. unsigned
+    ADC codes, zero near 32768) all point the same way from the origin; then the
+    mid-range is the centre when the readings are nearly equidistant from it (a sphere
+    of poses). The noise cloud of a single pose, or a few poses in physical units, keep
+    the origin.
     """
-    best, best_cv = np.zeros(3), np.inf
-    for centre in (np.zeros(3), (readings.max(axis=0) + readings.min(axis=0)) / 2.0):
-        norm = np.linalg.norm(readings - centre, axis=1)
-        cv = np.std(norm) / max(np.mean(norm), 1e-300)
-        if cv < best_cv:
-            best, best_cv = centre, cv
-    return best
+    y = np.asarray(readings, float).reshape(-1, 3)
+    norm = np.linalg.norm(y, axis=1, keepdims=True)
+    u = y / np.maximum(norm, 1e-300)
+    mean = u.mean(axis=0)
+    mean /= max(np.linalg.norm(mean), 1e-300)
+    if not len(y) or np.min(u @ mean) < np.cos(np.radians(CONE_DEG)):
+        return np.zeros(3)                      # spread around the origin: physical units
+    mid = (y.max(axis=0) + y.min(axis=0)) / 2.0
+    spread = np.linalg.norm(y - mid, axis=1)
+    if np.std(spread) < 0.1 * np.mean(spread):  # a sphere of poses about the mid-range
+        return mid
+    return np.zeros(3)
 
 
 def missing_faces(readings, within_deg=50.0):
