@@ -17,7 +17,8 @@ the cross-axis terms it cannot model are charged, so ``gn`` on six faces is neve
 
 The next pose is the candidate that minimises the predicted accuracy after one more
 window of typical weight there (A-optimal design in the metric the user asked for).
-A direction already held twice is skipped while another candidate helps. Before the
+A direction within 25° of one already held is never advised while another candidate
+helps. Before the
 windows can determine the model the advice walks the faces (z up, z down, x up, ...)
 and then adds the most informative distinct poses, so the fit becomes solvable after
 the fewest windows (6 for ``gn``, 10 in 9 distinct directions for ``ml``).
@@ -30,8 +31,8 @@ import numpy as np
 
 from .accuracy import predicted_accuracy
 from .errors import CalibrationError, InputError
-from .information import (Information, parameter_index, PRIOR_WEIGHT, SIGMA_FLOOR,
-                          window_variance)
+from .information import (Information, NEAR_DEG, parameter_index, PRIOR_WEIGHT,
+                          SIGMA_FLOOR, window_variance)
 from .poses import (CANDIDATE_DIRECTIONS, CANDIDATE_NAMES, CANDIDATE_POSES, fisher_rows,
                     pose_name)
 
@@ -42,8 +43,6 @@ DEFAULT_SIGMA_FLOOR = SIGMA_FLOOR
 """Error of a window mean that no averaging removes, m/s² (``core.information``)."""
 DISTINCT_DEG = 15.0
 """Two windows closer than this are the same direction (matches check_geometry)."""
-HELD_LIMIT = 2
-"""A direction held this often is advised again only when no other one helps."""
 MIN_WINDOWS = {'ml': 10, 'gn': 6}
 MIN_DIRECTIONS = {'ml': 9, 'gn': 6}
 INFLATION_NOTE = 4.0
@@ -294,9 +293,9 @@ def advise(means, weights, noise_std, gravity=G0, method='ml', target=DEFAULT_TA
         else:
             current = cal.predicted_accuracy
             if cal.cross_axis is not None:
-                from .acceptance import cross_axis_words
+                from .acceptance import cross_axis_words, estimation_accuracy
                 extra = cal.cross_axis.accuracy
-                if not reason and extra > target:
+                if extra > target and (not reason or extra >= estimation_accuracy(cal)):
                     reason = cross_axis_words(cal.cross_axis, 'use method ml')
     cand_rows = fisher_rows(info.T, CANDIDATE_DIRECTIONS, gravity)
     info.variance = np.maximum(info.variance, 1e-18)
@@ -326,7 +325,7 @@ def advise(means, weights, noise_std, gravity=G0, method='ml', target=DEFAULT_TA
         reason = 'one more window checks the noise level and the model'
     next_pose = None
     if not enough:
-        choice = _choose(after, held)
+        choice = _choose(after, u)
         if not solved:             # the walk of the refusals (check_geometry) before a solve
             from .accel.calibration import geometry_poses
             poses = geometry_poses(means, method, 1, weights, noise, floor) if n else []
@@ -341,13 +340,17 @@ def advise(means, weights, noise_std, gravity=G0, method='ml', target=DEFAULT_TA
                   noise_inflation=info.inflation if solved else 1.0, directions=u)
 
 
-def _choose(after, held):
+def _choose(after, directions):
     """
     Index of the candidate to advise once the model is solvable.
 
-    The most informative candidate held fewer than :data:`HELD_LIMIT` times.
+    The most informative candidate not within :data:`core.information.NEAR_DEG` of a
+    direction already held (a message never asks for what is there), unless none is.
     """
-    allowed = np.flatnonzero(held < HELD_LIMIT)
+    allowed = np.arange(len(after))
+    if len(directions):
+        cos_near = math.cos(math.radians(NEAR_DEG))
+        allowed = np.flatnonzero((CANDIDATE_DIRECTIONS @ directions.T).max(axis=1) < cos_near)
     if len(allowed) and np.isfinite(after[allowed]).any():
         return int(allowed[np.argmin(after[allowed])])
     return int(np.argmin(after))
