@@ -2,6 +2,7 @@
 
 from accel_calib_ros.core.accel.calibration import calibrate
 from accel_calib_ros.core.acceptance import review
+from accel_calib_ros.core.poses import CANDIDATE_POSES
 from accel_calib_ros.core.simulate import mpu9250_like, random_directions, simulate_window_means
 import numpy as np
 
@@ -19,12 +20,16 @@ def test_a_good_fit_is_accepted_and_a_strict_limit_or_no_convergence_refuses_it(
     acc = cal.predicted_accuracy
     verdict = review(cal, 0.02)
     assert 0 < acc <= 0.02 and verdict.accepted and verdict.refusal is None
-    assert verdict.reasons == [] and verdict.missing_faces == []
+    assert verdict.reasons == [] and verdict.poses == []
     strict = review(cal, acc / 3, limit_name='--max-predicted-error')
     assert not strict.accepted and not strict.accuracy_ok
     assert strict.refusal.count('\n') == 0 and '--max-predicted-error' in strict.refusal
-    assert strict.missing_faces and all(err > acc / 3 for _, err in strict.missing_faces)
-    assert strict.missing_faces[0][0] in strict.refusal
+    # It names the pose that helps most, never one within 25° of a direction held.
+    assert strict.poses and strict.poses[0][0] in strict.refusal
+    named = np.array([d for d, name in CANDIDATE_POSES if name in dict(strict.poses)])
+    held = cal.information.directions
+    assert np.degrees(np.arccos(np.max(named @ held.T))) >= 25.0
+    assert all(after < acc for _, after in strict.poses)
     cal.converged = False
     assert 'did not converge' in review(cal, 0.02).refusal
     assert review(cal, 0.02, allow_unconverged=True).accepted
@@ -37,7 +42,7 @@ def test_a_tilt_only_fit_names_the_face_it_never_saw():
                  np.cos(tilt)]
     verdict = review(_fit(dirs), 0.02)
     assert not verdict.accepted and 'z axis down' in verdict.refusal
-    assert 'z axis down' in [name for name, _ in verdict.missing_faces]
+    assert [name for name, _ in verdict.poses][0] == 'z axis down'
 
 
 def test_a_fit_in_g_is_refused_or_warned_as_not_physical():

@@ -79,3 +79,43 @@ def test_cli_json_plot_and_errors(tmp_path, capsys):
 def test_too_short_is_a_calibration_error():
     with pytest.raises(CalibrationError):
         allan(still(5, 0.003))
+
+
+def test_one_noise_density_convention_across_allan_diagnose_and_simulate(tmp_path, capsys):
+    """
+    Allan N everywhere: sigma(tau) = N/sqrt(tau), white samples std N sqrt(rate).
+
+    N² is the two-sided PSD (half the one-sided level Welch returns); ``diagnose`` reads
+    the same N from a session's windows; ``simulate --noise-from`` draws std N sqrt(rate).
+    (``diagnose`` printed the one-sided density, sqrt(2) N, before issue 17.)
+    """
+    from scipy import signal
+    from accel_calib_ros.core.simulate import mpu9250_like, random_directions, simulate_session
+    from accel_calib_ros.modelgap import diagnose
+    density = 0.003                                     # N, m/s²/√Hz
+    samples = still(300, density, seed=3)
+    result = allan(samples)
+    assert np.allclose(result.noise_density, density, rtol=0.05)
+    summary = result.summary()
+    assert np.allclose(summary['noise_density_ug_rthz'], density / 9.80665 * 1e6, rtol=0.05)
+    assert 'N/sqrt(tau)' in summary['noise_density_convention']
+    _, psd = signal.welch(samples.accel[:, 0] - samples.accel[:, 0].mean(), fs=RATE,
+                          nperseg=1024)                  # one-sided by default
+    assert np.sqrt(np.median(psd) / 2.0) == pytest.approx(density, rel=0.1)
+    # diagnose: the windows of a session of a sensor with that white noise.
+    rng = np.random.default_rng(4)
+    sensor = mpu9250_like(rng, rate_hz=RATE)
+    sensor.noise_std = np.full(3, density * np.sqrt(RATE))
+    session = simulate_session(sensor, random_directions(20, rng), rng, hold_s=3.0,
+                               rate_hz=RATE)
+    noise = diagnose(session.samples, 'ml').noise()
+    assert np.allclose(noise['noise_density_ug_rthz'], density / 9.80665 * 1e6, rtol=0.1)
+    assert noise['noise_density_convention'] == summary['noise_density_convention']
+    # simulate --noise-from keeps N at another rate: std N sqrt(rate).
+    path = tmp_path / 'allan.json'
+    path.write_text(json.dumps(summary))
+    from accel_calib_ros.dataio.noise_file import noise_from_allan
+    accel_std, _ = noise_from_allan(path, 400.0)
+    assert np.allclose(accel_std, result.noise_density * np.sqrt(400.0))
+    assert main(['allan', str(tmp_path / 'x.csv')]) == 2        # (missing file)
+    capsys.readouterr()

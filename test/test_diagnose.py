@@ -123,8 +123,9 @@ def test_summary_is_strict_json_with_parameters_noise_and_null():
     assert '%/°C' in effect['magnitude'] and len(effect['values']) == 3
     np.testing.assert_allclose(effect['values'], sensor.scale_tempco, atol=0.3e-4)
     assert summary['null']['replicates'] == 10 and 0 < summary['null']['p_value'] <= 1
-    # MPU-9250-like noise: 300 µg/√Hz.
-    np.testing.assert_allclose(summary['noise']['density_ug_per_sqrt_hz'], 300, rtol=0.1)
+    # MPU-9250-like noise: the datasheet's 300 µg/√Hz is one-sided, Allan N = 300/√2.
+    np.testing.assert_allclose(summary['noise']['noise_density_ug_rthz'], 300 / np.sqrt(2),
+                               rtol=0.1)
     assert 'temperature_scale' in result.text()
 
 

@@ -92,10 +92,13 @@ def test_calibration_loader_refuses_a_fifo_instead_of_blocking(tmp_path):
 
 
 @pytest.mark.parametrize('with_output', [False, True])
-def test_fit_of_data_in_wrong_units_is_refused_with_one_json(
+def test_fit_of_data_in_wrong_units_is_refused_with_one_line(
         tmp_path, capsys, faces_csv, with_output):
-    """Data scaled by 1e-9: accepted without -o, refused with no JSON with -o."""
-    import json
+    """
+    Data scaled by 1e-9: refused at the border (exit 2), naming --units; nothing written.
+
+    (Before issue 17 the fit ran and was refused as implausible only with -o.)
+    """
     import numpy as np
     rows = np.loadtxt(faces_csv, delimiter=',', skiprows=1, usecols=(0, 1, 2, 3))
     rows[:, 1:] *= 1e-9
@@ -105,11 +108,10 @@ def test_fit_of_data_in_wrong_units_is_refused_with_one_json(
     out.write_text('old: file\n')
     argv = ['fit', str(data), '--method', 'gn', '--json']
     argv += ['-o', str(out)] if with_output else []
-    assert main(argv) == 1
+    assert main(argv) == 2
     captured = capsys.readouterr()
-    summary = json.loads(captured.out)
-    assert summary['accepted'] is False and 'implausible' in summary['refusal']
-    assert summary['output'] is None and 'implausible' in captured.err
+    assert captured.out == '' and captured.err.count('\n') == 1
+    assert '--units' in captured.err and 'median acceleration magnitude' in captured.err
     assert out.read_text() == 'old: file\n'
 
 

@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 
-from .common import add_data_args, check_output, check_suffix
+from .common import add_data_args, check_output, check_suffix, to_si, unit_options
 from ..core.errors import InputError
 from ..core.samples import Samples
 
@@ -26,6 +26,7 @@ def run(args, out):
     from ..dataio.recording import csv_writer, iter_samples
     from .progress import Progress
     check_suffix(args.output, ('.csv',), 'apply -o')
+    unit_options(args)
     cal = load_calibration(args.calibration)
     is_csv = args.data.lower().endswith('.csv') and os.path.isfile(args.data)
     # Streamed: one piece of the recording in memory at a time, whatever its length.
@@ -33,7 +34,8 @@ def run(args, out):
                   'B' if is_csv else 'rows') as bar:
         pieces = iter_samples(args.data, imu_topic=args.imu_topic, temp_topic=args.temp_topic,
                               on_read=bar.update if is_csv else None)
-        first = next(pieces)
+        first = to_si(next(pieces), args)        # m/s², like every piece after it
+        pieces = (to_si(piece, args, check=False) for piece in pieces)
         if cal.thermal is not None and cal.thermal.usable and first.temp is None:
             print('accel-calib: warning: calibration has temperature tables but the data '
                   'have no temperature; applying without drift correction', file=sys.stderr)

@@ -31,11 +31,66 @@ class Parser(argparse.ArgumentParser):
 
 
 def add_data_args(p):
-    """Add the recording argument and the bag topic options to parser ``p``."""
+    """Add the recording argument, the bag topic and the unit options to parser ``p``."""
     p.add_argument('data', help='CSV file (t, ax, ay, az[, temp, gx, gy, gz]) or rosbag2 '
                                 '(.mcap, .db3 or bag directory)')
     p.add_argument('--imu-topic', help='sensor_msgs/Imu topic in a bag (default: the only one)')
     p.add_argument('--temp-topic', help='sensor_msgs/Temperature topic in a bag')
+    add_unit_args(p)
+
+
+UNITS = ('m/s2', 'g', 'counts')
+"""Units of ax, ay, az a recording may be in (as ``dataio.units.UNITS``)."""
+
+
+def add_unit_args(p):
+    """Add ``--units`` and the raw-count options (``dataio.units`` converts)."""
+    g = p.add_argument_group('unit of ax, ay, az (files written hold m/s²)')
+    g.add_argument('--units', choices=UNITS, default=None,
+                   help='m/s2 (default), g (standard gravity) or counts (raw ADC codes: '
+                        'give --counts-per-g or --range); gyro stays rad/s')
+    scale = g.add_mutually_exclusive_group()
+    scale.add_argument('--counts-per-g', type=ranged(1e-3, 1e9), metavar='N',
+                       help='nominal counts per g of --units counts (MPU-9250 at ±2 g: 16384)')
+    scale.add_argument('--range', type=ranged(1e-3, 1e6), dest='range_g', metavar='G',
+                       help='--units counts of a signed 16-bit sensor at ±G g '
+                            '(32768/G counts per g)')
+    g.add_argument('--counts-offset', type=number, default=0.0, metavar='CODE',
+                   help='code of zero acceleration for --units counts: 0 for signed codes '
+                        '(default), 32768 for unsigned 16-bit codes')
+
+
+def unit_options(args):
+    """
+    Return the declared unit of ax, ay, az as keyword arguments of ``dataio.units.to_si``.
+
+    The count options imply ``--units counts``; with another unit they are refused.
+    """
+    counts_per_g = getattr(args, 'counts_per_g', None)
+    if getattr(args, 'range_g', None) is not None:
+        counts_per_g = 32768.0 / args.range_g
+    offset = getattr(args, 'counts_offset', 0.0) or 0.0
+    units = getattr(args, 'units', None)
+    counting = counts_per_g is not None or offset != 0.0
+    if units is None:
+        units = 'counts' if counting else 'm/s2'
+    elif counting and units != 'counts':
+        raise UsageError(f'accel-calib: --counts-per-g, --range and --counts-offset are for '
+                         f'--units counts, not --units {units}')
+    if units == 'counts' and counts_per_g is None:
+        from ..dataio.units import COUNTS_NEED_SENSITIVITY
+        raise UsageError(f'accel-calib: {COUNTS_NEED_SENSITIVITY}')
+    return {'units': units, 'counts_per_g': counts_per_g, 'counts_offset': offset}
+
+
+def to_si(samples, args, check=True):
+    """Convert ``samples`` to m/s² as the unit options say (one refusal when implausible)."""
+    from ..dataio.units import check_magnitude, to_si as convert
+    options = unit_options(args)
+    si = convert(samples, **options)
+    if check:
+        check_magnitude(si.accel, samples.accel, **options)
+    return si
 
 
 def add_window_args(p):
@@ -121,13 +176,15 @@ SEED = ranged(0, 2 ** 32 - 1, integer=True)
 
 
 def load_data(args):
-    """Load the recording ``args.data`` (with a progress bar on a long read)."""
+    """Load the recording ``args.data`` in m/s² (with a progress bar on a long read)."""
     from ..dataio.recording import load_samples
     from .progress import Progress
+    unit_options(args)                          # a usage mistake before a long read
     size = os.path.getsize(args.data) if os.path.isfile(args.data) else None
     with Progress(size, 'read', 'B') as bar:     # shown only for a long read on a terminal
-        return load_samples(args.data, imu_topic=args.imu_topic, temp_topic=args.temp_topic,
-                            on_read=bar.update)
+        samples = load_samples(args.data, imu_topic=args.imu_topic,
+                               temp_topic=args.temp_topic, on_read=bar.update)
+    return to_si(samples, args)
 
 
 def same_file(a, b):

@@ -125,7 +125,7 @@ def _observations(samples, args):
     if getattr(args, 'mode', 'windows') == 'samples':
         return _Observations(readings=samples.accel, weights=None, temps=samples.temp,
                              noise=None, count=len(samples), gyro=None, dropped=[],
-                             mean_count=1.0)
+                             mean_count=1.0, low_passed=False)
     windows = detect_static_windows(samples, min_duration_s=args.min_window_s,
                                     threshold_factor=args.threshold_factor)
     if len(windows) == 0:
@@ -150,7 +150,8 @@ def _observations(samples, args):
     return _Observations(readings=windows.mean, weights=weights[keep], temps=windows.temp,
                          noise=windows.noise_std, count=len(windows),
                          gyro=windows.gyro_mean, dropped=dropped, t_mid=windows.t_mid,
-                         mean_count=float(np.mean(windows.count)) if len(windows) else 1.0)
+                         mean_count=float(np.mean(windows.count)) if len(windows) else 1.0,
+                         low_passed=windows.low_passed)
 
 
 def _band_dict(band):
@@ -173,6 +174,8 @@ def _fit_summary(cal, extra):
                                  else list(cal.temperature_range_c))}
     if cal.covariance is not None:
         d['stddev'] = np.sqrt(np.maximum(np.diag(cal.covariance), 0)).tolist()
+    if cal.cross_axis is not None:      # gn: what the terms it holds at zero cost
+        d['cross_axis_allowance'] = cal.cross_axis.to_dict()
     if cal.thermal is not None:
         d['thermal'] = cal.thermal.to_dict()
         d['thermal']['bands'] = [_band_dict(b) for b in cal.thermal.bands]
@@ -198,6 +201,12 @@ def _print_fit(cal, summary, n_obs, mode, samples, dropped, out_path):
           f'(limit {summary["max_predicted_error"]:g} m/s²)' if acc is not None
           and np.isfinite(acc) else 'predicted accuracy: unknown (the poses do not '
           'determine the calibration)')
+    if cal.cross_axis is not None:
+        print(f'  of which {cal.cross_axis.accuracy:.5f} m/s² for the cross-axis terms gn '
+              f'leaves out ({cal.cross_axis.source})')
+    if summary.get('windows_low_passed'):
+        print('windows found on a 5 Hz low-passed copy: vibration hid the holds from the '
+              'plain detector (the calibration node has only the plain one)')
     if dropped:
         print(f'dropped {len(dropped)} window(s):')
         for d in dropped:
@@ -272,7 +281,10 @@ def run(args, out):
     extra = {'mode': args.mode, 'samples': len(samples), 'residual_rms_uncalibrated': raw_resid,
              'max_predicted_error': args.max_predicted_error, 'accepted': refusal is None,
              'refusal': refusal, 'dropped_windows': obs.dropped,
-             'output': args.output if refusal is None else None}
+             'output': args.output if refusal is None else None,
+             'windows_low_passed': obs.low_passed,
+             'next_poses': [{'name': name, 'predicted_accuracy_after': after}
+                            for name, after in verdict.poses]}
     if refusal is None and not cal.converged:
         print(f'accel-calib: WARNING: the {cal.method} fit did NOT converge in '
               f'{cal.iterations} iterations; writing it only because of --force. Do not '

@@ -82,6 +82,25 @@ def direction_errors(T, covariance, directions, gravity=9.80665):
     return np.sqrt(np.maximum(ms, 0.0))
 
 
+def norm_errors(T, covariance, directions, gravity=9.80665):
+    """
+    RMS error of ``|corrected| - gravity`` when gravity lies along each direction, m/s².
+
+    The part of :func:`direction_errors` along gravity (first order): what a held-out
+    static window can measure of a calibration's error (its gravity-norm residual, less
+    the window's own noise), so predictions and held-out residuals can be compared.
+
+    :param directions: (M, 3) unit vectors (true gravity direction, sensor frame).
+    :returns: (M,) m/s².
+    """
+    T, C = _check(T, covariance)
+    u = np.asarray(directions, dtype=float).reshape(-1, 3)
+    u = u / np.linalg.norm(u, axis=1, keepdims=True)
+    J = _jacobians(np.linalg.inv(T), u, gravity)
+    radial = np.einsum('mi,mik->mk', u, J)
+    return np.sqrt(np.maximum(np.einsum('mk,kl,ml->m', radial, C, radial), 0.0))
+
+
 FACE_NAMES = ('x axis up', 'x axis down', 'y axis up', 'y axis down', 'z axis up',
               'z axis down')
 FACE_DIRECTIONS = np.vstack([np.eye(3)[k // 2] * (1 if k % 2 == 0 else -1) for k in range(6)])

@@ -1,24 +1,24 @@
 """
 Pose advice: how good the calibration would be now, which pose to hold next, when to stop.
 
-Everything is in the sensor frame. A *pose* is named by its gravity direction: the unit
-vector along which the accelerometer reads +1 g while the pose is held (the sensor axis
-pointing up). The poses a person can hold without a fixture are the 26 of a cube
-resting on a table: 6 faces, 12 edges at 45° and 8 corners (:data:`CANDIDATE_POSES`).
+Everything is in the sensor frame; the poses are the 26 of :mod:`core.poses` (a cube
+resting on a table: 6 faces, 12 edges at 45°, 8 corners), named by their gravity
+direction (the sensor axis pointing up).
 
 Predicted accuracy (interface §5, :func:`.accuracy.predicted_accuracy`) is the RMS
 error of the corrected acceleration vector at 1 g averaged over orientations uniform
-on the sphere, propagated from the covariance of (T, bias). Here the covariance is
-the Cramér-Rao bound of the ML model at the current estimate (the fit's own
-covariance near the optimum), with the noise
-of each window mean taken from the data: the within-window scatter divided by the
-window's samples, plus a small floor for what does not average down (bias
-instability, the hand), and inflated by the residual χ²/dof when the windows scatter
-more than that (untrustworthy data never look better than they are).
+on the sphere. It is exactly the number ``accel-calib fit`` and the calibration node
+report for the same windows: once the windows can determine the model, the advice
+fits them with :func:`.accel.calibration.calibrate`, whose covariance comes from the
+one accuracy model of :mod:`core.information` (the window means' noise taken from the
+data plus a floor no averaging removes, inflated by the residual χ²/dof; for ``gn``
+the cross-axis terms it cannot model are charged, so ``gn`` on six faces is never
+"enough").
 
 The next pose is the candidate that minimises the predicted accuracy after one more
 window of typical weight there (A-optimal design in the metric the user asked for).
-A direction already held twice is skipped while another candidate helps. Before the
+A direction within 25° of one already held is never advised while another candidate
+helps. Before the
 windows can determine the model the advice walks the faces (z up, z down, x up, ...)
 and then adds the most informative distinct poses, so the fit becomes solvable after
 the fewest windows (6 for ``gn``, 10 in 9 distinct directions for ``ml``).
@@ -31,91 +31,25 @@ import numpy as np
 
 from .accuracy import predicted_accuracy
 from .errors import CalibrationError, InputError
+from .information import (Information, NEAR_DEG, parameter_index, PRIOR_WEIGHT,
+                          SIGMA_FLOOR, window_variance)
+from .poses import (CANDIDATE_DIRECTIONS, CANDIDATE_NAMES, CANDIDATE_POSES, fisher_rows,
+                    pose_name)
 
 G0 = 9.80665
 DEFAULT_TARGET = 0.01
 """Default predicted accuracy target, m/s²."""
-DEFAULT_SIGMA_FLOOR = 1e-3
-"""Error of a window mean that no averaging removes, m/s² (about 0.1 mg: bias
-instability of a consumer MEMS accelerometer over a session, a hand on a table)."""
+DEFAULT_SIGMA_FLOOR = SIGMA_FLOOR
+"""Error of a window mean that no averaging removes, m/s² (``core.information``)."""
 DISTINCT_DEG = 15.0
 """Two windows closer than this are the same direction (matches check_geometry)."""
-HELD_LIMIT = 2
-"""A direction held this often is advised again only when no other one helps."""
-PRIOR_WEIGHT = 1e-3
-"""Weight, in typical windows, of the weak all-candidate prior used before a solve."""
 MIN_WINDOWS = {'ml': 10, 'gn': 6}
 MIN_DIRECTIONS = {'ml': 9, 'gn': 6}
-GN_PARAMETERS = (0, 3, 5, 6, 7, 8)
-"""Indices of T_xx, T_yy, T_zz, b in the 9-parameter order (the ``gn`` model)."""
 INFLATION_NOTE = 4.0
 """Residual χ²/dof above which the advice says the windows scatter too much."""
-_UPPER = np.triu_indices(3)
-
-
-def _cube_poses():
-    """Return the 26 cube poses: faces first (z up, z down, x, y), then edges, corners."""
-    faces = [(0, 0, 1), (0, 0, -1), (1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0)]
-    edges, corners = [], []
-    for x in (1, -1, 0):
-        for y in (1, -1, 0):
-            for z in (1, -1, 0):
-                nonzero = abs(x) + abs(y) + abs(z)
-                if nonzero == 2:
-                    edges.append((x, y, z))
-                elif nonzero == 3:
-                    corners.append((x, y, z))
-    poses = faces + edges + corners
-    return tuple(np.array(v, float) / np.linalg.norm(v) for v in poses), tuple(poses)
-
-
-_POSE_VECTORS, _POSE_CODES = _cube_poses()
-CANDIDATE_DIRECTIONS = np.array(_POSE_VECTORS)
-"""(26, 3) unit gravity directions of the candidate poses: faces, 45° edges, corners."""
-
-
-def _axis_words(code):
-    axes = [(('+' if c > 0 else '-') + a) for c, a in zip(code, 'xyz') if c]
-    n = len(axes)
-    if n == 1:
-        sign, axis = axes[0][0], axes[0][1]
-        return f'{axis} axis {"up" if sign == "+" else "down"}'
-    if n == 2:
-        first, second = axes
-        if first[0] == '-' and second[0] == '+':
-            first, second = second, first
-        if first[0] == '+':
-            return f'{first[1]} axis up, tilted 45° toward {second}'
-        return f'{first} axis up, tilted 45° toward {second}'
-    return 'corner: ' + ' '.join(axes) + ' up'
-
-
-CANDIDATE_NAMES = tuple(_axis_words(c) for c in _POSE_CODES)
-CANDIDATE_POSES = tuple(zip(CANDIDATE_DIRECTIONS, CANDIDATE_NAMES))
-"""(direction (3,), name) of the 26 poses a person can hold: 6 faces, 12 edges, 8 corners."""
-FACE_COUNT = 6
-
-
-def pose_name(direction):
-    """
-    Words for the pose whose gravity direction (sensor axis up) is ``direction``.
-
-    The nearest of :data:`CANDIDATE_POSES` is named; a direction more than 10° from
-    every candidate is prefixed with 'about'.
-
-    :param direction: (3,) vector in the sensor frame (any length > 0).
-    :return: e.g. 'z axis up', 'x axis up, tilted 45° toward +y', 'corner: +x +y +z up'.
-    """
-    v = np.asarray(direction, float).reshape(3)
-    norm = np.linalg.norm(v)
-    if not np.isfinite(norm) or norm == 0.0:
-        raise InputError('a pose direction must be a finite non-zero vector')
-    cosines = CANDIDATE_DIRECTIONS @ (v / norm)
-    best = int(np.argmax(cosines))
-    name = CANDIDATE_NAMES[best]
-    if cosines[best] < math.cos(math.radians(10.0)):
-        name = 'about ' + name
-    return name
+__all__ = ['Advice', 'CANDIDATE_DIRECTIONS', 'CANDIDATE_NAMES', 'CANDIDATE_POSES',
+           'DEFAULT_TARGET', 'NextPose', 'advise', 'coverage', 'fisher_rows', 'pose_name',
+           'predicted_accuracy', 'true_accuracy']
 
 
 # -- predicted accuracy ---------------------------------------------------------------------
@@ -132,69 +66,6 @@ def true_accuracy(T_est, bias_est, T_true, bias_true, gravity=G0):
     M = R @ np.asarray(T_true, float) - np.eye(3)
     c = R @ (np.asarray(bias_true, float) - np.asarray(bias_est, float))
     return math.sqrt(gravity ** 2 / 3.0 * float(np.sum(M ** 2)) + float(c @ c))
-
-
-def fisher_rows(T, directions, gravity=G0):
-    """
-    Information rows of window means in the 9 ML parameters, per unit noise.
-
-    A window at unit direction ``u`` measures ``y = T (g u) + b``; only the error along
-    the ellipsoid normal ``n ∝ T⁻ᵀ u`` informs the parameters (the tangential part is
-    absorbed by ``u``), so its Fisher information is ``h hᵀ / σ²`` with ``h = Gᵀ n``.
-
-    :param T: (3, 3) current estimate.
-    :param directions: (N, 3) unit gravity directions.
-    :return: (N, 9) rows ``h``.
-    """
-    u = np.asarray(directions, float).reshape(-1, 3)
-    n = np.linalg.solve(np.asarray(T, float).T, u.T).T
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    rows, cols = _UPPER
-    h = np.empty((len(u), 9))
-    h[:, :6] = n[:, rows] * gravity * u[:, cols]
-    h[:, 6:] = n
-    return h
-
-
-def _accuracy(T, cov, gravity):
-    """Predicted accuracy (m/s²), inf when it cannot be computed."""
-    value = predicted_accuracy(T, cov, gravity)
-    return value if math.isfinite(value) else math.inf
-
-
-def _accuracy_after(T, info, rows, var, index, inflation, gravity):
-    """
-    Predicted accuracy after one more window along each candidate, (K,) m/s².
-
-    One window adds ``h hᵀ / var`` to the information; the new covariance follows from
-    the current one by the Sherman-Morrison formula, so all candidates cost one inverse.
-    """
-    from .accuracy import sphere_average_matrix
-    cov = _covariance(info, index)
-    if cov is None:
-        return np.full(len(rows), math.inf)
-    C = cov[np.ix_(index, index)]
-    M = sphere_average_matrix(T, gravity)[np.ix_(index, index)]
-    H = rows[:, index]
-    CH = H @ C
-    denom = var + np.einsum('ij,ij->i', H, CH)
-    reduction = np.einsum('ij,jk,ik->i', CH, M, CH) / denom
-    value = inflation * (float(np.sum(M * C)) - reduction)
-    return np.sqrt(np.maximum(value, 0.0))
-
-
-def _covariance(info, index):
-    """Invert the information restricted to ``index``; embed in (9, 9); None if singular."""
-    sub = info[np.ix_(index, index)]
-    if not np.all(np.isfinite(sub)):
-        return None
-    scale = np.sqrt(np.maximum(np.diag(sub), 1e-300))
-    normed = sub / np.outer(scale, scale)
-    if np.linalg.cond(normed) > 1e12:
-        return None
-    cov = np.zeros((9, 9))
-    cov[np.ix_(index, index)] = np.linalg.inv(normed) / np.outer(scale, scale)
-    return cov
 
 
 # -- advice ---------------------------------------------------------------------------------
@@ -311,24 +182,6 @@ def _check_inputs(means, weights, noise_std, gravity, method, target):
     return means, weights, float(np.sqrt(np.mean(noise ** 2)))
 
 
-def _estimate(means, weights, gravity, method):
-    """Fit ``method``; return (T, bias, unit directions) or raise CalibrationError."""
-    if method == 'gn':
-        from .accel.gn import fit_gn
-        fit = fit_gn(means, weights, gravity)
-        T, bias = fit.T, fit.bias
-    else:
-        from .accel.ml import fit_ml
-        fit = fit_ml(means, weights, gravity, max_iter=60)
-        T, bias = fit.T, fit.bias
-    if not (np.all(np.isfinite(T)) and np.all(np.isfinite(bias))) \
-            or np.any(np.abs(np.diag(T) - 1.0) > 0.5):
-        raise CalibrationError('the fit is not physical yet')
-    u = np.linalg.solve(T, (means - bias).T).T
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    return T, bias, u
-
-
 def _held_counts(u):
     """Windows within :data:`DISTINCT_DEG` of each candidate (26,)."""
     if len(u) == 0:
@@ -368,6 +221,22 @@ def _solvable(u, method):
     return ''
 
 
+def _accuracy(T, cov, gravity):
+    """Predicted accuracy (m/s²), inf when it cannot be computed."""
+    value = predicted_accuracy(T, cov, gravity)
+    return value if math.isfinite(value) else math.inf
+
+
+def _fit(means, weights, noise, gravity, method, floor):
+    """Fit ``method`` as ``fit`` does; return the Calibration or raise CalibrationError."""
+    from .accel.calibration import calibrate
+    cal = calibrate(means, gravity, method, weights, noise_std=noise, sigma_floor=floor)
+    if not (np.all(np.isfinite(cal.T)) and np.all(np.isfinite(cal.bias))) \
+            or np.any(np.abs(np.diag(cal.T) - 1.0) > 0.5):
+        raise CalibrationError('the fit is not physical yet')
+    return cal
+
+
 def advise(means, weights, noise_std, gravity=G0, method='ml', target=DEFAULT_TARGET,
            sigma_floor=None):
     """
@@ -390,66 +259,64 @@ def advise(means, weights, noise_std, gravity=G0, method='ml', target=DEFAULT_TA
     if not (math.isfinite(floor) and floor >= 0):
         raise InputError('sigma_floor must be finite and not negative')
     n = len(means)
-    index = list(range(9)) if method == 'ml' else list(GN_PARAMETERS)
-    var_k = sigma ** 2 / weights + floor ** 2          # variance of each window mean
-    var_k = np.maximum(var_k, 1e-18)
-    typical_w = float(np.median(weights)) if n else 1.0
-    typical_var = max(sigma ** 2 / typical_w + floor ** 2, 1e-18)
+    index = parameter_index(method)
+    noise = np.full(3, sigma)
+    var = window_variance(weights, noise, n, floor)
+    typical_var = float(np.median(var)) if n else max(sigma ** 2 + floor ** 2, 1e-18)
 
-    # Current estimate: a fit once solvable, else the ideal sensor.
-    T, bias, u, reason, inflation = np.eye(3), np.zeros(3), None, '', 1.0
-    if n:
-        u0 = means / np.maximum(np.linalg.norm(means, axis=1, keepdims=True), 1e-12)
-        reason = _solvable(u0, method)
-        u = u0
-        if not reason:
-            try:
-                T, bias, u = _estimate(means, weights, gravity, method)
-                reason = _solvable(u, method)
-            except (CalibrationError, np.linalg.LinAlgError, ValueError) as err:
-                T, bias, u = np.eye(3), np.zeros(3), u0
-                reason = str(err)
-    else:
-        u = np.zeros((0, 3))
-        reason = f'no static windows yet; {method} needs {MIN_WINDOWS[method]}'
-    if method == 'gn':
-        T = np.diag(np.diag(T))
+    # Current estimate: the fit of ``accel-calib fit`` once solvable, else the ideal sensor.
+    u = means / np.maximum(np.linalg.norm(means, axis=1, keepdims=True), 1e-12) if n \
+        else np.zeros((0, 3))
+    info = Information(np.eye(3), np.zeros(3), gravity, method, u,
+                       fisher_rows(np.eye(3), u, gravity), var)
+    reason = _solvable(u, method) if n else \
+        f'no static windows yet; {method} needs {MIN_WINDOWS[method]}'
+    cal = None
+    if not reason:
+        try:
+            cal = _fit(means, weights, noise, gravity, method, floor)
+            info = cal.information
+            reason = _solvable(info.directions, method)
+        except (CalibrationError, np.linalg.LinAlgError, ValueError) as err:
+            cal, reason = None, str(err)
+    u = info.directions
     held = _held_counts(u)
-    rows = fisher_rows(T, u, gravity)
-    info = (rows * (1.0 / var_k)[:, None]).T @ rows
     solved = not reason
-    current = None
+    current, extra = None, 0.0
     if solved:
-        dof = n - len(index)
-        if dof >= 3:
-            resid = means - (gravity * u) @ T.T - bias
-            chi2 = float(np.sum(np.einsum('ij,ij->i', resid, resid) / var_k))
-            inflation = max(1.0, chi2 / dof)
-        if inflation > INFLATION_NOTE:
-            reason = (f'the windows scatter {math.sqrt(inflation):.1f}x more than their noise '
-                      '(the sensor moved while held, or the model lacks an effect: '
+        if info.inflation > INFLATION_NOTE:
+            reason = (f'the windows scatter {math.sqrt(info.inflation):.1f}x more than their '
+                      'noise (the sensor moved while held, or the model lacks an effect: '
                       + ('try method ml, ' if method == 'gn' else '') + 'run diagnose)')
-        cov = _covariance(info, index)
-        if cov is None:
+        if not math.isfinite(cal.predicted_accuracy):
             solved, reason = False, 'the poses leave a parameter undetermined'
         else:
-            current = _accuracy(T, cov * inflation, gravity)
-
-    cand_rows = fisher_rows(T, CANDIDATE_DIRECTIONS, gravity)
-    prior = (cand_rows.T @ cand_rows) * PRIOR_WEIGHT / typical_var
-    after = _accuracy_after(T, info if solved else info + prior, cand_rows, typical_var,
-                            index, inflation, gravity)
+            current = cal.predicted_accuracy
+            if cal.cross_axis is not None:
+                from .acceptance import cross_axis_words, estimation_accuracy
+                extra = cal.cross_axis.accuracy
+                if extra > target and (not reason or extra >= estimation_accuracy(cal)):
+                    reason = cross_axis_words(cal.cross_axis, 'use method ml')
+    cand_rows = fisher_rows(info.T, CANDIDATE_DIRECTIONS, gravity)
+    info.variance = np.maximum(info.variance, 1e-18)
+    matrix = info.matrix
     if not solved:
-        if n + 1 >= MIN_WINDOWS[method]:
-            # The accuracy once this pose makes the model solvable (no prior), if it does.
-            exact = np.full(len(CANDIDATE_DIRECTIONS), math.inf)
-            for k, h in enumerate(cand_rows):
-                cov = _covariance(info + np.outer(h, h) / typical_var, index)
-                if cov is not None and not _solvable(np.vstack([u, CANDIDATE_DIRECTIONS[k]]),
-                                                     method):
-                    exact[k] = _accuracy(T, cov, gravity)
-        else:
-            exact = np.full(len(CANDIDATE_DIRECTIONS), math.inf)
+        matrix = matrix + (cand_rows.T @ cand_rows) * PRIOR_WEIGHT / typical_var
+    probe = Information(info.T, info.bias, gravity, method, u, info.rows, info.variance,
+                        info.inflation if solved else 1.0)
+    if not n:
+        probe.variance = np.array([typical_var])
+        probe.rows = np.zeros((1, 9))
+    after = np.sqrt(probe.accuracy_after(cand_rows, matrix) ** 2 + extra ** 2)
+    exact = np.full(len(CANDIDATE_DIRECTIONS), math.inf)
+    if not solved and n + 1 >= MIN_WINDOWS[method]:
+        # The accuracy once this pose makes the model solvable (no prior), if it does.
+        for k, h in enumerate(cand_rows):
+            if _solvable(np.vstack([u, CANDIDATE_DIRECTIONS[k]]), method):
+                continue
+            cov = probe.covariance(info.matrix + np.outer(h, h) / typical_var)
+            if cov is not None:
+                exact[k] = _accuracy(info.T, cov, gravity)
     enough = bool(solved and current is not None and current <= target)
     if enough and n - len(index) < 1:
         # As many windows as parameters fit exactly: nothing checks the noise level or
@@ -458,31 +325,32 @@ def advise(means, weights, noise_std, gravity=G0, method='ml', target=DEFAULT_TA
         reason = 'one more window checks the noise level and the model'
     next_pose = None
     if not enough:
-        choice = _choose(after, held, solved)
+        choice = _choose(after, u)
+        if not solved:             # the walk of the refusals (check_geometry) before a solve
+            from .accel.calibration import geometry_poses
+            poses = geometry_poses(means, method, 1, weights, noise, floor) if n else []
+            choice = CANDIDATE_NAMES.index(poses[0][0]) if poses else 0
+        elif cal.cross_axis is not None and cal.cross_axis.poses:
+            choice = CANDIDATE_NAMES.index(cal.cross_axis.poses[0])   # measure what gn lacks
         value = after[choice] if solved else exact[choice]
         next_pose = NextPose(CANDIDATE_DIRECTIONS[choice].copy(), CANDIDATE_NAMES[choice],
                              _finite_or_none(value))
     return Advice(windows=n, predicted_accuracy=current, target=float(target), enough=enough,
                   next_pose=next_pose, method=method, held=held, reason=reason,
-                  noise_inflation=inflation, directions=u)
+                  noise_inflation=info.inflation if solved else 1.0, directions=u)
 
 
-def _choose(after, held, solved):
+def _choose(after, directions):
     """
-    Index of the candidate to advise.
+    Index of the candidate to advise once the model is solvable.
 
-    Before a solve: the first face not yet held (z up, z down, x up, ...), then the most
-    informative direction not yet held, so each new window adds a distinct direction.
-    After: the most informative candidate held fewer than :data:`HELD_LIMIT` times.
+    The most informative candidate not within :data:`core.information.NEAR_DEG` of a
+    direction already held (a message never asks for what is there), unless none is.
     """
-    if not solved:
-        for k in range(FACE_COUNT):
-            if held[k] == 0:
-                return k
-        fresh = np.flatnonzero(held == 0)
-        if len(fresh):
-            return int(fresh[np.argmin(after[fresh])])
-    allowed = np.flatnonzero(held < HELD_LIMIT)
+    allowed = np.arange(len(after))
+    if len(directions):
+        cos_near = math.cos(math.radians(NEAR_DEG))
+        allowed = np.flatnonzero((CANDIDATE_DIRECTIONS @ directions.T).max(axis=1) < cos_near)
     if len(allowed) and np.isfinite(after[allowed]).any():
         return int(allowed[np.argmin(after[allowed])])
     return int(np.argmin(after))

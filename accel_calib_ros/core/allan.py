@@ -12,9 +12,14 @@ overlapping estimator). From the curve, per axis:
 
 - ``noise_density`` N: the -1/2 slope, sigma(tau) = N / sqrt(tau) (units/√Hz), read
   from the shortest cluster times (a least-squares fit of sigma² = N²/tau there).
-  This is the IEEE/Kalibr convention: white samples at rate f have std N sqrt(f)
-  (``white_sample_std``, what a simulator draws). A datasheet density D quoted over the
-  bandwidth f/2 (std = D sqrt(f/2), as ``simulate.mpu9250_like``) is D = N sqrt(2);
+  This is the package's one noise-density convention (:data:`NOISE_DENSITY_CONVENTION`;
+  IEEE Std 952, Kalibr): for white noise the mean of tau seconds of samples has
+  variance N²/tau, so N² is the level of the *two-sided* power spectral density
+  (equivalently half the one-sided level: N = sqrt(S₁/2)) and white samples at rate f
+  have std N sqrt(f) (``white_sample_std``, what a simulator draws). A *one-sided*
+  density D, as quoted with an RMS of D sqrt(bandwidth) (the datasheet style, and what
+  ``simulate.mpu9250_like`` draws: std = D sqrt(f/2)), is D = N sqrt(2). ``diagnose``
+  and ``simulate --noise-from`` use the same N;
 - ``bias_instability`` B: the flat bottom, B = min sigma / sqrt(2 ln 2 / pi) (only a
   bound, ``bias_instability_reached`` False, when the curve still falls at the end);
 - ``random_walk`` K: the +1/2 slope, sigma(tau) = K sqrt(tau / 3), read from the
@@ -30,8 +35,16 @@ import numpy as np
 
 from .errors import CalibrationError, InputError
 
+G0 = 9.80665
+"""Standard gravity, m/s² (µg in the summaries)."""
 MIN_CLUSTERS = 9
 """A cluster time is kept only when this many independent clusters fit in the record."""
+
+NOISE_DENSITY_CONVENTION = ('Allan N: sigma_allan(tau) = N/sqrt(tau) for white noise; '
+                            'N**2 = two-sided PSD = one-sided PSD / 2; white samples at rate '
+                            'f have std N*sqrt(f); a one-sided (datasheet-style) density is '
+                            'N*sqrt(2)')
+"""The one noise-density convention of the package (allan, diagnose, simulate, docs)."""
 
 BI_FACTOR = float(np.sqrt(2.0 * np.log(2.0) / np.pi))
 """sigma at the flat bottom of the curve over the bias instability (0.664)."""
@@ -75,6 +88,9 @@ class AllanResult:
             'random_walk': self.random_walk.tolist(),
             'random_walk_ci': self.random_walk_ci.tolist(),
             'white_sample_std': self.white_sample_std().tolist(),
+            'noise_density_ug_rthz': [float(v / G0 * 1e6) if a.startswith('a') else None
+                                      for a, v in zip(self.axes, self.noise_density)],
+            'noise_density_convention': NOISE_DENSITY_CONVENTION,
             'units': {'accel': {'noise_density': 'm/s²/√Hz', 'bias_instability': 'm/s²',
                                 'random_walk': 'm/s² per √s'},
                       'gyro': {'noise_density': 'rad/s/√Hz', 'bias_instability': 'rad/s',
@@ -89,11 +105,15 @@ class AllanResult:
     def text(self):
         """Return the human summary, one line per axis."""
         lines = [f'{self.duration_s:.0f} s at {self.rate_hz:.0f} Hz; tau {self.tau[0]:.3g} to '
-                 f'{self.tau[-1]:.3g} s (95 % intervals)']
+                 f'{self.tau[-1]:.3g} s (95 % intervals); noise density N as Allan: '
+                 'σ(τ) = N/√τ, white samples std N·√rate (one-sided density = N·√2)']
         for i, axis in enumerate(self.axes):
+            ug = (f' ({self.noise_density[i] / G0 * 1e6:.0f} µg/√Hz)'
+                  if axis.startswith('a') else '')
             lines.append(
                 f'{axis}: noise density {self.noise_density[i]:.3g} '
-                f'[{self.noise_density_ci[i, 0]:.3g}, {self.noise_density_ci[i, 1]:.3g}] /√Hz, '
+                f'[{self.noise_density_ci[i, 0]:.3g}, {self.noise_density_ci[i, 1]:.3g}] '
+                f'/√Hz{ug}, '
                 f'bias instability {"" if self.bias_instability_reached[i] else "<= "}'
                 f'{self.bias_instability[i]:.3g} '
                 f'[{self.bias_instability_ci[i, 0]:.3g}, {self.bias_instability_ci[i, 1]:.3g}] '

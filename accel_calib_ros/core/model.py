@@ -52,6 +52,11 @@ class Calibration:
     :param level_roll_pitch_rad: (roll, pitch) of the sensor relative to the robot
         base, rad ("level trim"), or None.
     :param sensor_id: name of the sensor the calibration belongs to, or None.
+    :param cross_axis: ``gn`` only: what the cross-axis terms it holds at zero cost
+        (``core.information.CrossAxis``, part of ``predicted_accuracy``), or None.
+    :param information: the information of the observations of the fit
+        (``core.information.Information``: the source of the poses a refusal names);
+        not stored in files.
     """
 
     T: np.ndarray
@@ -74,6 +79,8 @@ class Calibration:
     temperature_range_c: tuple = None
     level_roll_pitch_rad: tuple = None
     sensor_id: str = None
+    cross_axis: object = None
+    information: object = None
 
     def __post_init__(self):
         self.T = np.asarray(self.T, dtype=float).reshape(3, 3)

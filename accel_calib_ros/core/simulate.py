@@ -128,7 +128,9 @@ def mpu9250_like(rng, rate_hz=100.0, effects=()):
     Draw a sensor with MPU-9250 datasheet error magnitudes.
 
     Scale ±3 %, cross-axis ±2 %, zero-g offset ±60 mg (x, y) / ±80 mg (z), noise
-    300 µg/√Hz over a bandwidth of rate/2, ±2 g quantisation. Effects beyond the
+    300 µg/√Hz (the datasheet's one-sided density) over a bandwidth of rate/2, i.e.
+    sample std 300 µg·√(rate/2) and Allan N = 212 µg/√Hz (``core.allan``), ±2 g
+    quantisation. Effects beyond the
     calibration model are off unless named in ``effects``: ``scale_nonlinearity``
     (±0.5 %), ``temperature_bias`` (±1.5 mg/°C), ``temperature_scale``
     (±0.026 %/°C), ``bias_drift`` (±0.2 mg/min). ``nonorthogonality`` is always

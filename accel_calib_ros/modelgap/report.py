@@ -195,9 +195,11 @@ def write_report(result, folder):
                      + ', '.join(f'{v:.3g}' for v in noise['sample_std'])
                      + f' (reading units), window-mean variance factor {noise["inflation"]:.3g}'
                      + f' ({", ".join(noise.get("model", []))})'
-                     + (', density ' + ', '.join(f'{v:.0f}' for v in
-                                                 noise['density_ug_per_sqrt_hz'])
-                        + ' µg/√Hz' if 'density_ug_per_sqrt_hz' in noise else '') + '.')
+                     + (', white-noise density ' + ', '.join(
+                         f'{v:.0f}' for v in noise['noise_density_ug_rthz'])
+                        + ' µg/√Hz (Allan N: σ(τ) = N/√τ; at the time scale of the windows '
+                        + ', '.join(f'{v:.0f}' for v in noise['window_noise_density_ug_rthz'])
+                        + ')' if 'noise_density_ug_rthz' in noise else '') + '.')
     lines += ['', '![gap per step](gap.png)', '']
     for label, name in images:
         lines += [f'### Residuals: {label}', '', f'![{label}]({name})', '']

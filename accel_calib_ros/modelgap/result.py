@@ -8,6 +8,7 @@ from scipy import optimize
 from .effects import EFFECTS, G0
 from .model import Conditions, Model
 from .noise import null_gap_limit, null_gap_p, NULL_QUANTILE, WindowNoise
+from ..core.allan import NOISE_DENSITY_CONVENTION
 
 MIN_EFFECT_MG = 1.0
 """Smallest practical threshold, mg: an effect smaller than this is never named."""
@@ -146,12 +147,18 @@ class DiagnoseResult:
         if self.noise_std is not None:
             out['sample_std'] = np.asarray(self.noise_std, float).tolist()
             if self.rate_hz:
+                # The package's one convention (core.allan): the white-noise density N
+                # with Allan deviation N/sqrt(tau), so white samples have std N sqrt(rate)
+                # (what allan reads at the shortest cluster times); at the windows' time
+                # scale the window means see N sqrt(inflation). In true units, µg/√Hz.
                 T = np.diag(Model(self.baseline, []).split(self.fits[0].x)[0])
                 inflation = (self.window_noise.inflation if self.window_noise is not None
                              else np.ones(3))
-                density = (np.asarray(self.noise_std) * np.sqrt(inflation) / np.abs(T)
-                           / np.sqrt(self.rate_hz / 2.0))
-                out['density_ug_per_sqrt_hz'] = (density / G0 * 1e6).tolist()
+                white = np.asarray(self.noise_std) / np.abs(T) / np.sqrt(self.rate_hz)
+                out['noise_density_ug_rthz'] = (white / G0 * 1e6).tolist()
+                out['window_noise_density_ug_rthz'] = (white * np.sqrt(inflation)
+                                                       / G0 * 1e6).tolist()
+                out['noise_density_convention'] = NOISE_DENSITY_CONVENTION
         return out
 
     def verdict(self):

@@ -28,16 +28,16 @@ windows (the calibration node), ``held_out_check`` cross-validates the finding.
 import numpy as np
 from scipy import stats
 
-from .effects import EFFECTS
-from .evidence import (column_correlation, effect_worst_case_mg, predicted_accuracy_mg,
-                       separation_advice, strongest_correlations, visibility)
+from .effects import EFFECTS, G0
+from .evidence import (column_correlation, effect_worst_case_mg, separation_advice,
+                       strongest_correlations, visibility)
 from .model import conditions_from_windows, fit_model, min_windows, Model, model_start
 from .noise import simulated_null_gaps, window_noise, WindowNoise
 from .probes import residual_probes
 from .result import DiagnoseResult, MIN_EFFECT_MG
 from ..core.accel.calibration import calibrate
 from ..core.errors import CalibrationError
-from ..core.windows import detect_static_windows
+from ..core.windows import DEFAULTS, detect_static_windows, MAX_WEIGHT_S
 
 P_SUPPORT = 1e-3
 """Largest F-test p-value for which an added effect counts as supported."""
@@ -86,7 +86,7 @@ def diagnose_windows(windows, baseline='ml', gravity=9.80665, rate_hz=None, rng=
     c = conditions_from_windows(windows, gravity, noise.inflation)
     start_cal = calibrate(c.readings, gravity, baseline, windows.count.astype(float))
     model, fit = fit_model(baseline, [], c, model_start(baseline, start_cal))
-    accuracy = predicted_accuracy_mg(model, fit)
+    accuracy = _fit_accuracy_mg(windows, gravity, baseline, rate_hz)
     threshold = (float(min_effect_mg) if min_effect_mg is not None
                  else max(MIN_EFFECT_MG, accuracy if np.isfinite(accuracy) else 0.0))
     has_temp = bool(np.all(np.isfinite(np.asarray(windows.temp, float))))
@@ -186,6 +186,26 @@ def diagnose_windows(windows, baseline='ml', gravity=9.80665, rate_hz=None, rng=
     return result
 
 
+def _fit_accuracy_mg(windows, gravity, baseline, rate_hz):
+    """
+    Return the predicted accuracy ``accel-calib fit`` reports for these windows, mg.
+
+    ``core.accel.calibration.calibrate`` with fit's weights (samples per window, capped
+    at ``MAX_WEIGHT_S`` of data when the rate is known) and noise. For a ``gn`` baseline
+    the share fit charges for the cross-axis terms gn leaves out is not counted: those
+    terms are what this check looks for (``nonorthogonality``), so they must not raise
+    the practical threshold.
+    """
+    from ..core.acceptance import estimation_accuracy
+    weights = windows.weights(MAX_WEIGHT_S, rate_hz)
+    try:
+        cal = calibrate(windows.mean, gravity, baseline, weights, noise_std=windows.noise_std)
+    except (CalibrationError, np.linalg.LinAlgError, ValueError):
+        return float('nan')
+    value = estimation_accuracy(cal)
+    return float(value) * 1000.0 / G0 if value is not None else float('nan')
+
+
 PARTIAL_SHARE = 0.05
 """A named effect is withdrawn when its variable's probe still finds this share of its Δχ²."""
 
@@ -231,54 +251,16 @@ def _demote_partial(result, c):
     result.probes = residual_probes(model, fits[-1], c)
 
 
-VIBRATION_CUTOFF_HZ = 5.0
-"""Low-pass corner used to find the poses under vibration (the statistics use raw samples)."""
-
-
-def _detect_windows(samples, min_duration_s, threshold_factor):
-    """
-    Find the static windows, also under vibration.
-
-    Strong vibration lifts the moving standard deviation so that the moves between poses
-    no longer stand out and poses merge. The detection therefore also runs on a
-    zero-phase low-passed copy (``VIBRATION_CUTOFF_HZ``, well below vibration, well
-    above a pose change); the one with more windows is kept. The window means and
-    scatters always come from the raw samples.
-    """
-    from scipy import signal
-    from ..core.samples import Samples
-    from ..core.windows import DEFAULTS, still_mask, still_runs, windows_from_ranges
-    windows = detect_static_windows(samples, min_duration_s=min_duration_s,
-                                    threshold_factor=threshold_factor)
-    rate = samples.rate_hz
-    if not np.isfinite(rate) or rate < 8 * VIBRATION_CUTOFF_HZ or len(samples) < 1000:
-        return windows
-    # Block means of k samples (about 100 Hz) first: cheap on 10⁷ rows, and a low-pass.
-    k = max(int(rate // 100.0), 1)
-    n = len(samples) // k
-    coarse = samples.accel[:n * k].reshape(n, k, 3).mean(axis=1)
-    b, a = signal.butter(2, VIBRATION_CUTOFF_HZ / (rate / k / 2))
-    smooth = Samples(samples.t[:n * k:k], signal.filtfilt(b, a, coarse, axis=0))
-    mask, floor = still_mask(smooth, threshold_factor=threshold_factor)
-    trim = int(round(DEFAULTS['trim_s'] * rate))
-    starts, stops = still_runs(mask)
-    starts, stops = starts * k + trim, np.minimum(stops * k, len(samples)) - trim
-    keep = stops - starts >= max(int(round(min_duration_s * rate)), 2)
-    if keep.sum() <= len(windows):
-        return windows
-    return windows_from_ranges(samples, starts[keep], stops[keep], floor)
-
-
-def diagnose(samples, baseline='ml', gravity=9.80665, min_duration_s=0.5,
-             threshold_factor=3.0, max_weight_s=None, replicates=0, rng=None,
-             min_effect_mg=None):
+def diagnose(samples, baseline='ml', gravity=9.80665, min_duration_s=DEFAULTS['min_duration_s'],
+             threshold_factor=DEFAULTS['threshold_factor'], max_weight_s=None, replicates=0,
+             rng=None, min_effect_mg=None):
     """
     Run the model-gap workflow on a recording.
 
     :param samples: Samples (validated).
     :param baseline: 'ml' or 'gn'.
     :param gravity: local gravity, m/s² (in reading units per m/s² of T for raw counts).
-    :param min_duration_s: shortest static window, s.
+    :param min_duration_s: shortest static window, s (the same default as ``fit``).
     :param threshold_factor: stillness threshold over the noise floor.
     :param max_weight_s: unused for the gap (each window's own noise weighs it);
         accepted for symmetry with ``fit``.
@@ -288,7 +270,8 @@ def diagnose(samples, baseline='ml', gravity=9.80665, min_duration_s=0.5,
     :returns: DiagnoseResult.
     :raises CalibrationError: too few windows, or the baseline cannot be fitted.
     """
-    windows = _detect_windows(samples, min_duration_s, threshold_factor)
+    windows = detect_static_windows(samples, min_duration_s=min_duration_s,
+                                    threshold_factor=threshold_factor)   # fit's detector
     rate = samples.rate_hz
     noise = window_noise(samples, windows)
     if noise.moving.any() and (~noise.moving).sum() >= min_windows(baseline):

@@ -527,7 +527,7 @@ class CalibrationNode(Node):
         verdict = review(cal, p['max_predicted_error'], refuse_unphysical=True,
                          max_scale_error=p['max_scale_error'],
                          max_cross_axis=p['max_cross_axis'], max_bias_g=p['max_bias_g'],
-                         unit='m/s2')
+                         unit='m/s2', ml_hint="set the parameter 'method' to ml")
         if not verdict.converged:
             raise refuse(self._refusal(verdict))
         expected = max(float(np.sqrt(np.mean(noise ** 2) / np.median(weights))),
@@ -620,11 +620,8 @@ class CalibrationNode(Node):
             cal.sensor_id = self.params['sensor_id'] or self.frame_id or None
 
     def _refusal(self, verdict):
-        """Return the core's refusal, plus the advice's next pose when accuracy is short."""
-        text = verdict.refusal
-        if not verdict.accuracy_ok and self._advice and self._advice.get('next_pose'):
-            text += f'; hold next: {self._advice["next_pose"]["name"]}'
-        return text
+        """Return the core's refusal (it names the poses to hold, as ``~/advice`` does)."""
+        return verdict.refusal
 
     # -- model-gap check (off the service's critical path) ------------------------------
     def _schedule_model_gap(self, held, thermal_bands):
@@ -658,7 +655,8 @@ class CalibrationNode(Node):
             count=count, t_mid=np.array([x['t_mid'] for x in windows], float),
             temp=np.array([x['temp'] for x in windows], float))
         try:
-            report = diagnose_windows(sw, baseline, self.params['gravity'], replicates=0)
+            report = diagnose_windows(sw, baseline, self.params['gravity'],
+                                      rate_hz=self.detector.rate_hz, replicates=0)
         except (CalibrationError, InputError, ValueError, np.linalg.LinAlgError) as err:
             self.get_logger().debug(f'model-gap check skipped: {err}')
             return {'missing_effects': [], 'note': f'skipped: {err}'}

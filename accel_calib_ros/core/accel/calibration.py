@@ -21,13 +21,13 @@ from .ellipsoid import fit_ellipsoid
 from .gn import fit_gn
 from .ml import fit_ml, fit_ml_bias_corrected
 from .thermal import fit_thermal_table
-from ..accuracy import fisher_information, predicted_accuracy
+from ..accuracy import predicted_accuracy
 from ..errors import CalibrationError, InputError
 from ..model import Calibration, METHODS
 from ..windows import distinct_directions
 
-__all__ = ['Calibration', 'METHODS', 'calibrate', 'check_geometry', 'estimate_gyro_bias',
-           'find_outlier_windows', 'gravity_residuals', 'missing_faces', 'parameter_covariance']
+__all__ = ['Calibration', 'METHODS', 'accuracy_from_windows', 'calibrate', 'check_geometry',
+           'estimate_gyro_bias', 'find_outlier_windows', 'gravity_residuals', 'missing_faces']
 
 
 def gravity_residuals(cal_or_T, bias, readings, gravity, temps=None):
@@ -39,48 +39,121 @@ def gravity_residuals(cal_or_T, bias, readings, gravity, temps=None):
     return np.linalg.norm(corrected, axis=1) - gravity
 
 
-def check_geometry(readings, method):
-    """Raise CalibrationError unless the observations can determine ``method``'s model."""
+def check_geometry(readings, method, weights=None, noise_std=None, sigma_floor=None):
+    """
+    Raise CalibrationError unless the observations can determine ``method``'s model.
+
+    The message names the poses that would help most (:func:`geometry_poses`, the
+    source of ``advise`` before a solve), never one already held.
+
+    :param weights: (N,), ``noise_std`` (3,), ``sigma_floor``: as for :func:`calibrate`
+        (they weigh the windows when the poses are ranked).
+    """
     n = len(readings)
     need_obs, need_dirs = (6, 6) if method == 'gn' else (10, 9)
+    centred = readings - _direction_centre(readings) if n else readings
+    hint = {'weights': weights, 'noise_std': noise_std, 'sigma_floor': sigma_floor}
     if n < need_obs:
+        dirs = distinct_directions(centred, 15.0, limit=need_dirs) if n else 0
         raise CalibrationError(
             f'{n} static observations; method {method} needs at least {need_obs} '
-            f'in {need_dirs} distinct orientations: hold more poses')
-    centred = readings - _direction_centre(readings)
+            f'in {need_dirs} distinct orientations: '
+            + _poses_hint(readings, method, max(need_obs - n, need_dirs - dirs), **hint))
     dirs = distinct_directions(centred, 15.0, limit=need_dirs)
     if dirs < need_dirs:
-        missing = missing_faces(centred)
+        faces = not missing_faces(centred, 15.0)
+        why = (' (all six faces are held: its 3 cross-axis terms need tilted poses)'
+               if faces and method != 'gn' else '')
+        other = ('; or the 6-parameter gn method, which assumes orthogonal axes'
+                 if method != 'gn' and dirs >= 6 else '')
         raise CalibrationError(
             f'only {dirs} distinct orientations among {n} observations; method {method} '
-            f'needs {need_dirs}: '
-            + (f'no pose had the {", the ".join(missing)}; hold those poses (still, a few '
-               'seconds each) and record again' if missing else
-               'turn the sensor so each axis points up and down'))
+            f'needs {need_dirs}{why}: '
+            + _poses_hint(readings, method, need_dirs - dirs, **hint) + other)
     centred = readings - np.median(readings, axis=0)
     spread = np.linalg.svd(centred / (np.linalg.norm(centred, axis=1).max() + 1e-300),
                            compute_uv=False)
     if spread[-1] < 1e-3 * spread[0]:
-        raise CalibrationError('all orientations lie in one plane: tilt the sensor out of it')
+        raise CalibrationError('all orientations lie in one plane: tilt the sensor out of it: '
+                               + _poses_hint(readings, method, 1, **hint))
+
+
+def observation_directions(readings):
+    """
+    Return the unit gravity directions (N, 3) of raw readings before any fit.
+
+    Taken from :func:`_direction_centre` (the origin for readings in physical units, the
+    mid-range for raw codes with an offset); a zero vector stays zero.
+    """
+    y = np.asarray(readings, float).reshape(-1, 3)
+    if not len(y):
+        return y
+    centred = y - _direction_centre(y)
+    return centred / np.maximum(np.linalg.norm(centred, axis=1, keepdims=True), 1e-300)
+
+
+def geometry_poses(readings, method, count=3, weights=None, noise_std=None, sigma_floor=None):
+    """
+    Return the poses to hold next while the observations cannot determine the model.
+
+    The faces no observation is near come first (z up, z down, x up, ...), then the
+    poses that add most information (``core.information.poses_to_add`` with a weak prior
+    over all candidates), never one within 25° of a direction held.
+
+    :param readings: (N, 3) observations (any unit).
+    :param method: 'ml', 'ml-bc', 'ellipsoid' or 'gn'.
+    :param weights: (N,) samples behind each observation, or None.
+    :return: list of (name, direction (3,), None).
+    """
+    from ..information import Information, poses_to_add, window_variance
+    from ..poses import fisher_rows
+    u = observation_directions(readings)
+    u = u[np.linalg.norm(u, axis=1) > 0.5]
+    var = window_variance(weights if weights is None or len(u) == len(weights) else None,
+                          noise_std, len(u), sigma_floor)
+    info = Information(np.eye(3), np.zeros(3), 9.80665, method, u,
+                       fisher_rows(np.eye(3), u), var)
+    with np.errstate(all='ignore'):
+        return [(name, d, None) for name, d, _ in
+                poses_to_add(info, max(1, min(int(count), 3)), faces_first=True)]
+
+
+def _poses_hint(readings, method, count, **kw):
+    """Return 'hold next: A, then B (still, ...)': the poses of :func:`geometry_poses`."""
+    poses = geometry_poses(readings, method, count, **kw)
+    if not poses:
+        return 'turn the sensor so each axis points up and down, and tilted between'
+    return ('hold next: ' + ', then '.join(name for name, _, _ in poses)
+            + ' (still, a few seconds each) and record again')
+
+
+CONE_DEG = 45.0
+"""Readings all within this angle of one direction from the origin may hold an offset."""
 
 
 def _direction_centre(readings):
     """
     Return the point (3,) from which the readings' directions are taken.
 
-    Static readings lie on the gravity ellipsoid around the bias: of the origin (readings in
-    physical units, small bias) and the mid-range (raw counts with an offset, e.g. unsigned
-    ADC codes), the one from which the readings are most nearly equidistant. The noise
-    cloud of a single pose is not equidistant from its own mid-range, so it stays one
-    direction.
+    Static readings lie on the gravity ellipsoid around the bias. In physical units the
+    bias is small and the origin is the centre. Raw codes with an offset (e.g. unsigned
+    ADC codes, zero near 32768) all point the same way from the origin; then the
+    mid-range is the centre when the readings are nearly equidistant from it (a sphere
+    of poses). The noise cloud of a single pose, or a few poses in physical units, keep
+    the origin.
     """
-    best, best_cv = np.zeros(3), np.inf
-    for centre in (np.zeros(3), (readings.max(axis=0) + readings.min(axis=0)) / 2.0):
-        norm = np.linalg.norm(readings - centre, axis=1)
-        cv = np.std(norm) / max(np.mean(norm), 1e-300)
-        if cv < best_cv:
-            best, best_cv = centre, cv
-    return best
+    y = np.asarray(readings, float).reshape(-1, 3)
+    norm = np.linalg.norm(y, axis=1, keepdims=True)
+    u = y / np.maximum(norm, 1e-300)
+    mean = u.mean(axis=0)
+    mean /= max(np.linalg.norm(mean), 1e-300)
+    if not len(y) or np.min(u @ mean) < np.cos(np.radians(CONE_DEG)):
+        return np.zeros(3)                      # spread around the origin: physical units
+    mid = (y.max(axis=0) + y.min(axis=0)) / 2.0
+    spread = np.linalg.norm(y - mid, axis=1)
+    if np.std(spread) < 0.1 * np.mean(spread):  # a sphere of poses about the mid-range
+        return mid
+    return np.zeros(3)
 
 
 def missing_faces(readings, within_deg=50.0):
@@ -121,71 +194,40 @@ def _fit_reference(y, gravity, method, weights):
     return T, bias, cov, info
 
 
-def _unit_weights(weights, n):
-    w = np.ones(n) if weights is None else np.asarray(weights, float).reshape(n)
-    return w / np.mean(w)
-
-
-def parameter_covariance(y, T, bias, gravity, method, weights=None, noise_std=None,
-                         mean_count=None):
+def accuracy_from_windows(cal, y, weights=None, noise_std=None, sigma_floor=None):
     """
-    Covariance (9, 9) of (T upper, bias) at the fitted parameters, with noise from the data.
+    Fill ``cal.covariance``, ``predicted_accuracy``, ``information`` and ``cross_axis``.
 
-    The information matrix is the ML one (``accuracy.fisher_information``) for every
-    method, restricted to the parameters the method fits (GN: the diagonal of T and the
-    bias; the others are held and get zero variance). The noise per unit weight is the
-    larger of the residual scatter about the fitted ellipsoid (model errors included)
-    and the within-window noise (``noise_std`` / sqrt(mean samples per window)), so a
-    fit with few spare observations cannot look better than its sensor.
+    The one accuracy model (:mod:`core.information`): the information of the window
+    means at the fitted parameters with the noise taken from the data (within-window
+    noise over the samples behind each mean, a floor no averaging removes, inflated by
+    the residual χ²/dof), restricted to the parameters the method fits; a ``gn`` fit is
+    charged for the cross-axis terms it holds at zero (measured by the ML fit of the
+    same windows when they can, else the datasheet bound).
 
-    :param y: (N, 3) observations, reading units.
-    :param noise_std: (3,) per-sample noise, reading units, or None.
-    :param mean_count: mean samples per observation behind ``noise_std`` (1 for samples).
-    :returns: (covariance (9, 9), sigma per unit weight, reading units).
+    :param cal: fitted Calibration (T, bias, gravity, method); changed in place.
+    :param y: (N, 3) the observations it was fitted to (drift removed), m/s².
+    :param weights: (N,) samples behind each observation (capped), or None.
+    :param noise_std: (3,) per-sample noise, m/s², or None.
+    :param sigma_floor: error of a window mean no averaging removes, m/s².
     """
-    n = len(y)
-    w = _unit_weights(weights, n)
-    F, u = fisher_information(T, bias, y, w, gravity)
-    idx = [0, 3, 5, 6, 7, 8] if method == 'gn' else list(range(9))
-    ideal = gravity * u @ np.asarray(T).T + bias
-    resid = np.linalg.norm(y - ideal, axis=1)
-    sigmas = []
-    if n > len(idx):
-        sigmas.append(np.sqrt(np.sum(w * resid ** 2) / (n - len(idx))))
-    if noise_std is not None and np.all(np.isfinite(noise_std)):
-        per_sample = float(np.sqrt(np.mean(np.square(noise_std))))
-        sigmas.append(per_sample / np.sqrt(max(mean_count or 1.0, 1.0)))
-    sigma = max(sigmas) if sigmas else float('nan')
-    cov = np.zeros((9, 9))
-    sub = F[np.ix_(idx, idx)]
-    scale = np.sqrt(np.maximum(np.diag(sub), 1e-300))
+    from ..information import cross_axis_allowance, information
     with np.errstate(all='ignore'):
-        if np.linalg.cond(sub / np.outer(scale, scale)) > 1e14:
-            cov[np.ix_(idx, idx)] = np.inf
-        else:
-            cov[np.ix_(idx, idx)] = sigma ** 2 * np.linalg.inv(sub)
-    return cov, float(sigma)
-
-
-def _add_held_terms(cal, y, gravity, weights):
-    """
-    Charge the 6-parameter (gn) fit for the cross-axis terms it holds at zero.
-
-    With 10 or more observations the 9-parameter ML fit measures those terms; their
-    mean-square error as estimates of zero (value² + variance) goes on the diagonal of
-    the covariance, so the predicted accuracy of a gn fit to a non-orthogonal sensor
-    says what the missing terms cost. With fewer observations nothing can check the
-    assumption (the CLI warns).
-    """
-    try:
-        fit = fit_ml(y, weights, gravity)
-    except (CalibrationError, np.linalg.LinAlgError, ValueError):
-        return
-    held = {1: (0, 1), 2: (0, 2), 4: (1, 2)}                # PARAMETER_NAMES index -> T[i, j]
-    if not np.all(np.isfinite(fit.covariance)):
-        return
-    for k, (i, j) in held.items():
-        cal.covariance[k, k] += fit.T[i, j] ** 2 + fit.covariance[k, k]
+        info = information(y, cal.T, cal.bias, cal.gravity, cal.method, weights, noise_std,
+                           sigma_floor)
+        cov = info.covariance()
+        cal.information = info
+        if cov is None:
+            cal.covariance = np.full((9, 9), np.inf)
+            cal.predicted_accuracy = float('inf')
+            return cal
+        if cal.method == 'gn':
+            cal.cross_axis = cross_axis_allowance(info, y, weights, noise_std, sigma_floor)
+            cov = cov + cal.cross_axis.covariance
+        cal.covariance = cov
+        acc = predicted_accuracy(cal.T, cov, cal.gravity)
+    cal.predicted_accuracy = acc if np.isfinite(acc) else float('inf')
+    return cal
 
 
 def estimate_gyro_bias(gyro_means, weights=None):
@@ -206,7 +248,7 @@ def estimate_gyro_bias(gyro_means, weights=None):
 
 def calibrate(readings, gravity=9.80665, method='ml', weights=None, temps=None,
               thermal=False, band_width_c=10.0, noise_std=None, source='', gyro_means=None,
-              mean_count=None):
+              mean_count=None, sigma_floor=None):
     """
     Fit a Calibration to static observations (window means or samples).
 
@@ -214,15 +256,18 @@ def calibrate(readings, gravity=9.80665, method='ml', weights=None, temps=None,
     :param gravity: local gravity, m/s².
     :param method: 'ml' (Sun & Xu), 'ml-bc' (ML with bootstrap bias correction),
         'gn' (Gui Yi 6-parameter) or 'ellipsoid' (algebraic LS).
-    :param weights: (N,) observation weights (samples per window).
+    :param weights: (N,) samples behind each observation (per window, capped), or None.
     :param temps: (N,) observation temperatures, °C, for the drift tables.
     :param thermal: fit temperature-band tables (needs ``temps``).
     :param noise_std: (3,) per-sample noise measured in the windows, m/s².
     :param gyro_means: (N, 3) mean angular rate of each observation, rad/s: gives the
         gyroscope bias (and per temperature band with ``thermal``).
-    :param mean_count: mean samples per observation behind ``noise_std``
-        (default: the mean weight, i.e. samples per window).
-    :returns: Calibration with ``predicted_accuracy`` (spec §5).
+    :param mean_count: unused (kept for callers): the weights are the samples behind
+        each observation (1 without weights).
+    :param sigma_floor: error of a window mean no averaging removes, m/s² (default
+        ``core.information.SIGMA_FLOOR``).
+    :returns: Calibration with ``predicted_accuracy`` (spec §5), ``covariance``,
+        ``information`` and, for ``gn``, ``cross_axis`` (:func:`accuracy_from_windows`).
     :raises CalibrationError: the data cannot determine the model (with the reason).
     """
     if method not in METHODS:
@@ -230,7 +275,7 @@ def calibrate(readings, gravity=9.80665, method='ml', weights=None, temps=None,
     y = np.asarray(readings, float).reshape(-1, 3)
     if not np.all(np.isfinite(y)):
         raise InputError('observations hold NaN or infinite values')
-    check_geometry(y, method)
+    check_geometry(y, method, weights, noise_std, sigma_floor)
     T, bias, cov, info = _fit_reference(y, gravity, method, weights)
     cal = Calibration(T=T, bias=bias, gravity=gravity, method=method, covariance=cov,
                       observations=len(y), source=source,
@@ -257,16 +302,7 @@ def calibrate(readings, gravity=9.80665, method='ml', weights=None, temps=None,
         cal.thermal = fit_thermal_table(y, temps, cal.T, cal.bias, gravity, weights,
                                         band_width_c)
     clean = y if cal.thermal is None or temps is None else y - cal.thermal.drift(y, temps)
-    if mean_count is None:
-        mean_count = 1.0 if weights is None else float(np.mean(weights))
-    with np.errstate(all='ignore'):
-        cal.covariance, _ = parameter_covariance(clean, cal.T, cal.bias, gravity, method,
-                                                 weights, cal.noise_std, mean_count)
-        if method == 'gn':
-            _add_held_terms(cal, clean, gravity, weights)
-        cal.predicted_accuracy = predicted_accuracy(cal.T, cal.covariance, gravity)
-    if not np.isfinite(cal.predicted_accuracy):
-        cal.predicted_accuracy = float('inf')
+    accuracy_from_windows(cal, clean, weights, noise_std, sigma_floor)
     if gyro_means is not None:
         cal.gyro_bias = estimate_gyro_bias(gyro_means, weights)
         if cal.thermal is not None:

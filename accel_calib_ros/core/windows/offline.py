@@ -21,6 +21,8 @@ import numpy as np
 
 from ..errors import CalibrationError, InputError
 
+MAX_WEIGHT_S = 5.0
+"""A window weighs at most this many seconds of samples (see StaticWindows.weights)."""
 DEFAULTS = {'window_s': 0.25, 'min_duration_s': 0.3, 'threshold_factor': 3.0, 'trim_s': 0.1,
             'floor_quantile': 0.02, 'max_rotation_rad_s': float(np.radians(2.0))}
 
@@ -40,6 +42,8 @@ class StaticWindows:
     :param noise_floor: per-sample noise level the thresholds were set from, m/s².
     :param gyro_mean: (W, 3) mean angular rate, rad/s, or None without gyro.
     :param dropped: windows left out, one dict each (t_start, t_stop s, reason).
+    :param low_passed: found on the low-passed copy (vibration hid the holds; the
+        node's streaming detector has no such pass).
     """
 
     start: np.ndarray
@@ -52,6 +56,7 @@ class StaticWindows:
     noise_floor: float = float('nan')
     gyro_mean: np.ndarray = None
     dropped: list = field(default_factory=list)
+    low_passed: bool = False
 
     def __len__(self):
         return len(self.count)
@@ -68,7 +73,7 @@ class StaticWindows:
                              self.scatter[index], self.count[index], self.t_mid[index],
                              self.temp[index], self.noise_floor,
                              None if self.gyro_mean is None else self.gyro_mean[index],
-                             list(self.dropped))
+                             list(self.dropped), self.low_passed)
 
     def weights(self, max_weight_s=None, rate_hz=None):
         """
@@ -173,14 +178,30 @@ def rotation_rate(samples, accel_still, window_s=DEFAULTS['window_s']):
     return np.linalg.norm(_moving_mean(gyro - bias, n), axis=1)
 
 
+VIBRATION_CUTOFF_HZ = 5.0
+"""Low-pass corner of the vibration-robust pass (well below vibration, above a pose change)."""
+VIBRATION_GAIN = 1.25
+"""The low-passed pass is kept when its windows hold this much more still time."""
+
+
 def detect_static_windows(samples, window_s=DEFAULTS['window_s'],
                           min_duration_s=DEFAULTS['min_duration_s'],
                           threshold_factor=DEFAULTS['threshold_factor'],
                           trim_s=DEFAULTS['trim_s'],
                           floor_quantile=DEFAULTS['floor_quantile'],
-                          max_rotation_rad_s=DEFAULTS['max_rotation_rad_s']):
+                          max_rotation_rad_s=DEFAULTS['max_rotation_rad_s'],
+                          vibration_robust=True):
     """
-    Find the static windows of a recording.
+    Find the static windows of a recording (the one detector of ``fit``, ``advise``, ``diagnose``).
+
+    Strong vibration lifts the moving standard deviation so that the holds no longer
+    stand out from the moves. With ``vibration_robust`` the same test therefore also
+    runs on a zero-phase low-passed copy (block means to about 100 Hz, then a centred
+    moving mean over 1 / (2 ``VIBRATION_CUTOFF_HZ``), twice); its windows are kept only
+    when they hold more than ``VIBRATION_GAIN`` times the still time of the plain pass
+    (vibration hid the holds), so a hand-held or table-still session keeps the plain
+    windows, which the streaming detector of the node reproduces. Window means and
+    scatters always come from the raw samples.
 
     :param samples: Samples (validated).
     :param window_s: moving standard deviation window, s.
@@ -191,10 +212,46 @@ def detect_static_windows(samples, window_s=DEFAULTS['window_s'],
     :param max_rotation_rad_s: with a gyro, still also means turning slower than
         this (bias-free moving mean, rad/s) and than 5x the median rate of the
         accelerometer-still samples; None or inf switches the gyro test off.
+    :param vibration_robust: also try the low-passed copy (see above).
     :returns: StaticWindows (possibly empty), with the runs the gyro rejected in
-        ``dropped``.
+        ``dropped`` and ``low_passed`` True when the vibration-robust pass won.
     """
     mask, floor = still_mask(samples, window_s, threshold_factor, floor_quantile)
+    settings = (samples, window_s, min_duration_s, trim_s, max_rotation_rad_s)
+    windows = _windows_of_mask(mask, floor, *settings)
+    if vibration_robust:
+        low = _low_passed_mask(samples, window_s, threshold_factor, floor_quantile)
+        if low is not None:
+            robust = _windows_of_mask(*low, *settings)
+            if robust.count.sum() > VIBRATION_GAIN * windows.count.sum():
+                robust.low_passed = True
+                return robust
+    return windows
+
+
+def _low_passed_mask(samples, window_s, threshold_factor, floor_quantile):
+    """Still mask (N,) and floor of a low-passed copy, or None when too short or slow."""
+    rate = samples.rate_hz
+    if not np.isfinite(rate) or rate < 8 * VIBRATION_CUTOFF_HZ or len(samples) < 1000:
+        return None
+    from ..samples import Samples
+    # Block means of k samples (about 100 Hz) first: cheap on 10⁷ rows, and a low-pass.
+    k = max(int(rate // 100.0), 1)
+    n = len(samples) // k
+    coarse = samples.accel[:n * k].reshape(n, k, 3).mean(axis=1)
+    # Then a centred moving mean of 1 / (2 cutoff) applied twice: zero phase, numpy
+    # only (fit must not pull in scipy), -3 dB near 3 Hz, -27 dB at 15 Hz.
+    width = max(int(round(rate / k / (2.0 * VIBRATION_CUTOFF_HZ))), 1)
+    smooth = Samples(samples.t[:n * k:k], _moving_mean(_moving_mean(coarse, width), width))
+    mask, floor = still_mask(smooth, window_s, threshold_factor, floor_quantile)
+    full = np.zeros(len(samples), bool)
+    full[:n * k] = np.repeat(mask, k)
+    return full, floor
+
+
+def _windows_of_mask(mask, floor, samples, window_s, min_duration_s, trim_s,
+                     max_rotation_rad_s):
+    """Cut the still runs of ``mask`` into windows: trim, shortest length, gyro test."""
     rate = samples.rate_hz
     trim = int(round(trim_s * rate))
     min_len = max(int(round(min_duration_s * rate)), 2)
