@@ -85,6 +85,33 @@ MAX_ALIGNMENT_STD_DEG = 2.0
 UPPER = np.triu_indices(3)
 
 
+def coverage_cells(cells=COVERAGE_CELLS):
+    """Centres (cells, 3) of the nearly equal-area cells: a Fibonacci lattice, unit vectors."""
+    i = np.arange(cells) + 0.5
+    z = 1.0 - 2.0 * i / cells
+    phi = np.pi * (1.0 + np.sqrt(5.0)) * i
+    r = np.sqrt(1.0 - z * z)
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+
+
+def visited_cells(directions, cells=COVERAGE_CELLS, min_samples=1):
+    """
+    Tell which cells of :func:`coverage_cells` a set of directions visits.
+
+    :param directions: (N, 3) vectors (normalised here; zero or non-finite rows ignored).
+    :returns: boolean (cells,): at least ``min_samples`` directions fall in the cell (the
+        Voronoi cell of its lattice point).
+    """
+    d = np.asarray(directions, float).reshape(-1, 3)
+    norm = np.linalg.norm(d, axis=1)
+    ok = np.isfinite(norm) & (norm > 0)
+    if not ok.any():
+        return np.zeros(cells, bool)
+    d = d[ok] / norm[ok, None]
+    _, cell = cKDTree(coverage_cells(cells)).query(d)
+    return np.bincount(cell, minlength=cells) >= min_samples
+
+
 def sphere_coverage(directions, cells=COVERAGE_CELLS, min_samples=1):
     """
     Measure the fraction of the sphere that a set of directions visits.
@@ -98,20 +125,7 @@ def sphere_coverage(directions, cells=COVERAGE_CELLS, min_samples=1):
     :param min_samples: directions needed for a cell to count.
     :returns: float in [0, 1].
     """
-    d = np.asarray(directions, float).reshape(-1, 3)
-    norm = np.linalg.norm(d, axis=1)
-    ok = np.isfinite(norm) & (norm > 0)
-    if not ok.any():
-        return 0.0
-    d = d[ok] / norm[ok, None]
-    i = np.arange(cells) + 0.5
-    z = 1.0 - 2.0 * i / cells
-    phi = np.pi * (1.0 + np.sqrt(5.0)) * i
-    r = np.sqrt(1.0 - z * z)
-    lattice = np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
-    _, cell = cKDTree(lattice).query(d)
-    hits = np.bincount(cell, minlength=cells)
-    return float(np.mean(hits >= min_samples))
+    return float(np.mean(visited_cells(directions, cells, min_samples)))
 
 
 def canonical(T, R, field_uT, field_known=False):
