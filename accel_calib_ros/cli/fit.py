@@ -74,7 +74,7 @@ def solve_imu(args, samples, windows, cal):
     Solve the gyroscope and magnetometer beside the accelerometer calibration ``cal``.
 
     Each is judged on its own (``core.imu``): absent or insufficient data, or a fit beyond
-    its limit, leave that part out with a warning naming what is missing; the
+    its limit, leave that part out (``warn_imu`` names what is missing); the
     accelerometer calibration is never refused for them. The calibrated parts are put
     into ``cal``.
 
@@ -84,12 +84,16 @@ def solve_imu(args, samples, windows, cal):
     gyro = solve_gyro(samples, windows, cal, getattr(args, 'max_gyro_error', 0.005))
     mag = solve_magnetometer(samples, windows, cal, getattr(args, 'max_mag_error', 1.0),
                              getattr(args, 'field', None))
-    for outcome in (gyro, mag):
+    store(cal, gyro, mag)
+    return gyro, mag
+
+
+def warn_imu(outcomes):
+    """Warn on stderr about each sensor that is there but not calibrated."""
+    for outcome in outcomes:
         if outcome.status in ('insufficient', 'refused'):
             print(f'accel-calib: warning: {outcome.sensor} not calibrated ({outcome.status}): '
                   f'{outcome.reason}', file=sys.stderr)
-    store(cal, gyro, mag)
-    return gyro, mag
 
 
 def _history_path(args):
@@ -339,9 +343,6 @@ def run(args, out):
                  'max_predicted_error': args.max_predicted_error,
                  'dropped_windows': [] if obs is None else obs.dropped, 'output': None,
                  **imu})
-        else:
-            for line in _not_fitted_summary(samples, str(err))['sensor_lines'][1:]:
-                print(line, file=sys.stderr)
         raise
     raw_resid = np.sqrt(np.mean((np.linalg.norm(obs.readings, axis=1) - args.gravity) ** 2))
     _drop_implausible_gyro_bias(cal)
@@ -363,6 +364,8 @@ def run(args, out):
               'trust this calibration.', file=sys.stderr)
     for warning in verdict.warnings if refusal is None else []:
         print(f'accel-calib: warning: {warning}', file=sys.stderr)
+    if refusal is None:
+        warn_imu((gyro, mag))
     if refusal is None and args.output:
         from ..dataio.calibration_file import save_calibration
         save_calibration(cal, args.output)

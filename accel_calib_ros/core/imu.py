@@ -97,7 +97,7 @@ class SensorOutcome:
 
     @property
     def predicted_accuracy(self):
-        """The fit's predicted accuracy (None without a fit or when not finite)."""
+        """Return the fit's predicted accuracy (None without a fit or when not finite)."""
         return None if self.result is None else _finite(self.result.predicted_accuracy)
 
     def line(self):
@@ -312,14 +312,20 @@ def field_advice(mag, dip_deg=None):
         ``missing_direction`` ((3,) unit vector in the sensor frame towards the unseen
         cells, or None) and ``advice`` (words).
     """
-    from .magnetometer import coverage_cells, MIN_COVERAGE, visited_cells
+    from .magnetometer import coverage_cells, MIN_COVERAGE, MIN_SPREAD, visited_cells
     d = field_directions(mag)
     seen = visited_cells(d)
     cover = float(np.mean(seen))
-    out = {'coverage': cover, 'enough': cover >= MIN_COVERAGE, 'missing_direction': None,
-           'advice': ''}
+    spread = float(np.linalg.eigvalsh(d.T @ d / len(d))[0]) if len(d) else 0.0
+    out = {'coverage': cover, 'enough': cover >= MIN_COVERAGE and spread >= MIN_SPREAD,
+           'missing_direction': None, 'advice': ''}
     if not len(d):
         out['advice'] = 'no magnetometer samples yet: turn the sensor while recording'
+        return out
+    if cover >= MIN_COVERAGE and spread < MIN_SPREAD:
+        out['advice'] = (f'the field has been seen from {cover:.0%} of the sphere but its '
+                         'directions stay near one cone (the sensor turned about one axis '
+                         'only): turn it upside down and onto each side too')
         return out
     if seen.all():
         out['advice'] = 'the field has been seen from the whole sphere'
@@ -348,10 +354,11 @@ def gyro_advice(samples, windows=None, accel=None):
     :param windows: the static windows or None to detect them.
     :param accel: the accelerometer calibration, when there is one.
     :returns: dict ``status`` ('absent', 'insufficient' or 'ok'), ``missing_axes``
-        (names), ``excitation_deg`` ((3,) or None), ``moves_used`` and ``advice`` (words:
-        the turn to make, from ``core.gyro.TURN_ADVICE``).
+        (names; None while too few moves to tell), ``excitation_deg`` ((3,) or None),
+        ``moves_used`` (None while too few) and ``advice`` (words: the turn to make, from
+        ``core.gyro.TURN_ADVICE``).
     """
-    from .gyro import fit_gyro, MIN_MOVES, TURN_ADVICE
+    from .gyro import fit_gyro, TURN_ADVICE
     out = {'status': 'absent', 'missing_axes': [], 'excitation_deg': None, 'moves_used': 0,
            'advice': 'the data have no gx gy gz'}
     if samples.gyro is None:
@@ -359,9 +366,9 @@ def gyro_advice(samples, windows=None, accel=None):
     try:
         g = fit_gyro(samples, windows, accel=accel)
     except (CalibrationError, InputError, np.linalg.LinAlgError) as err:
-        out.update(status='insufficient', missing_axes=['x', 'y', 'z'],
-                   advice=f'{err}'.split('. Dropped')[0] + f'; between {MIN_MOVES + 1} or more '
-                   'held poses, turn the sensor about each axis: '
+        out.update(status='insufficient', missing_axes=None, moves_used=None,
+                   advice=f'{err}'.split('. Dropped')[0] + ', and '
+                   'between them turn about each axis: '
                    + '; '.join(f'about {a}: {w}' for a, w in TURN_ADVICE.items()))
         return out
     out.update(missing_axes=list(g.missing_axes), excitation_deg=_list(g.excitation_deg),

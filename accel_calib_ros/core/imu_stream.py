@@ -142,7 +142,7 @@ class ImuCollector:
 
     @property
     def mag(self):
-        """The kept magnetometer rows (k, 8): t, mx my mz (µT), ax ay az, temp."""
+        """Return the kept magnetometer rows (k, 8): t, mx my mz (µT), ax ay az, temp."""
         return self._mag[:self._n_mag]
 
     def _keep_mag(self, mag_rows, accel_temp):
