@@ -280,20 +280,32 @@ def field_directions(mag):
     Return the unit field directions (M, 3) of the magnetometer samples, hard iron removed.
 
     Seen from the centre of the best-fitting ellipsoid (soft iron removed too) when the
-    samples determine one, else from the middle of their range.
+    samples determine one, else from the middle of their range. Samples that hardly
+    change (their spread within ``MIN_FIELD_TO_NOISE`` times their noise) have seen one
+    direction: none is returned for them.
 
     :param mag: (N, 3) µT, NaN rows ignored.
     """
     from .accel.ml import fit_ml
+    from .magnetometer import MIN_FIELD_TO_NOISE
     m = np.asarray(mag, float).reshape(-1, 3)
     m = m[np.all(np.isfinite(m), axis=1)]
     if len(m) < 10:
         return np.zeros((0, 3))
     try:
-        return fit_ml(m, radius=1.0).directions
+        ml = fit_ml(m, radius=1.0)
+        if float(np.linalg.det(ml.T)) ** (1.0 / 3.0) >= MIN_FIELD_TO_NOISE * ml.sigma:
+            return ml.directions
     except (CalibrationError, InputError, np.linalg.LinAlgError, ValueError):
-        d = m - 0.5 * (m.max(axis=0) + m.min(axis=0))
-        return d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+        pass
+    step = np.diff(m, axis=0)                  # noise from successive samples (robust)
+    noise = float(np.max(np.median(np.abs(step - np.median(step, axis=0)), axis=0))) \
+        * 1.4826 / np.sqrt(2.0)
+    extent = float(np.max(m.max(axis=0) - m.min(axis=0)))
+    if not extent > MIN_FIELD_TO_NOISE * noise:
+        return np.zeros((0, 3))
+    d = m - 0.5 * (m.max(axis=0) + m.min(axis=0))
+    return d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
 
 
 def magnetometer_coverage(mag):
@@ -320,7 +332,9 @@ def field_advice(mag, dip_deg=None):
     out = {'coverage': cover, 'enough': cover >= MIN_COVERAGE and spread >= MIN_SPREAD,
            'missing_direction': None, 'advice': ''}
     if not len(d):
-        out['advice'] = 'no magnetometer samples yet: turn the sensor while recording'
+        out['advice'] = ('no magnetometer samples yet' if np.isfinite(
+            np.asarray(mag, float)).all(axis=-1).sum() < 10 else 'the field has hardly changed '
+            'direction yet (0% of the sphere)') + ': turn the sensor while recording'
         return out
     if cover >= MIN_COVERAGE and spread < MIN_SPREAD:
         out['advice'] = (f'the field has been seen from {cover:.0%} of the sphere but its '

@@ -76,6 +76,16 @@ floor) keeps the field on one cone: 0.02 on a simulated session, although its pa
 crosses 32 % of the cells; six random poses give 0.05-0.11, the six faces 0.23.
 """
 
+MIN_FIELD_TO_NOISE = 20.0
+"""
+Smallest ratio of the fitted field magnitude to the per-sample noise accepted.
+
+Samples that never changed direction (a sensor that did not turn, or one stuck reading)
+are a blob of noise, to which the ellipsoid fit happily fits a sphere of the noise's
+size: 0.9 µT for 0.4 µT noise (ratio 4); a real session gives 48 µT for 0.4 µT (120),
+an indoor field of 25 µT with a 0.6 µT noise still 40.
+"""
+
 MIN_WINDOWS = 6
 """Static windows with magnetometer samples needed to fit R and the dip (4 unknowns)."""
 
@@ -383,6 +393,13 @@ def fit_magnetometer(samples, windows=None, accel=None, field_uT=None,
             'of directions (less about the true centre): turn the sensor through many '
             'orientations, upside down and on each side, while recording') from None
     T1, hard_iron = ml.T, ml.bias
+    radius = float(np.linalg.det(T1)) ** (1.0 / 3.0)
+    if not radius >= MIN_FIELD_TO_NOISE * ml.sigma:
+        raise CalibrationError(
+            f'the magnetometer samples hardly change direction (an ellipsoid of {radius:.2g} µT '
+            f'fits them, {radius / ml.sigma:.1f} times their noise of {ml.sigma:.2g} µT; needs '
+            f'{MIN_FIELD_TO_NOISE:g}): they cover 0% of the sphere of field directions; turn the '
+            'sensor through many orientations, upside down and on each side, while recording')
     coverage = sphere_coverage(ml.directions)
     spread = float(np.linalg.eigvalsh(ml.directions.T @ ml.directions / n)[0])
     if coverage < min_coverage or (min_coverage > 0 and spread < MIN_SPREAD):
