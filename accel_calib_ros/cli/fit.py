@@ -57,7 +57,7 @@ def add_imu_arguments(p):
                    metavar='FRACTION',
                    help='store the gyroscope scale/misalignment only when its predicted '
                         'accuracy (RMS relative rate error over all directions) is at most '
-                        'this (default %(default)s = 0.5 %%); otherwise only that part is '
+                        'this (default %(default)s = 1 %%); otherwise only that part is '
                         'left out')
     g.add_argument('--max-mag-error', type=ranged(1e-9, 1e3), default=DEFAULT_MAX_MAG_ERROR,
                    metavar='UT',
@@ -81,9 +81,8 @@ def solve_imu(args, samples, windows, cal):
     :returns: (gyro outcome, magnetometer outcome).
     """
     from ..core.imu import solve_gyro, solve_magnetometer, store
-    gyro = solve_gyro(samples, windows, cal, getattr(args, 'max_gyro_error', 0.005))
-    mag = solve_magnetometer(samples, windows, cal, getattr(args, 'max_mag_error', 1.0),
-                             getattr(args, 'field', None))
+    gyro = solve_gyro(samples, windows, cal, args.max_gyro_error)
+    mag = solve_magnetometer(samples, windows, cal, args.max_mag_error, args.field)
     store(cal, gyro, mag)
     return gyro, mag
 
