@@ -72,6 +72,13 @@ class _Ring:
         order = np.r_[self.next:self.capacity, 0:self.next]
         return self.t[order], self.v[order].astype(float)
 
+    def span(self):
+        """Return the seconds from the oldest row to the newest (0 with fewer than two)."""
+        if len(self) < 2:
+            return 0.0
+        oldest = self.t[self.next] if self.full else self.t[0]
+        return float(self.t[(self.next - 1) % self.capacity] - oldest)
+
     def clear(self):
         """Forget every row (keep the memory)."""
         self.next, self.full = 0, False
@@ -206,9 +213,8 @@ class ImuCollector:
 
     def state(self, coverage=None):
         """Return what was kept, as a JSON-ready dict."""
-        t, _ = self.ring.ordered() if len(self.ring) else (np.zeros(0), None)
         return {'raw_samples': len(self.ring), 'raw_capacity': self.ring.capacity,
-                'raw_seconds': float(t[-1] - t[0]) if len(t) > 1 else 0.0,
+                'raw_seconds': self.ring.span(),
                 'gyro_received': self.gyro_seen, 'mag_received': self.mag_received,
                 'mag_samples': int(len(self.mag)), 'mag_decimation': self.stride,
                 'mag_coverage': coverage}

@@ -441,6 +441,11 @@ class CalibrationNode(Node):
                   'target_accuracy_m_s2': self.params['target_accuracy'],
                   'calibration_file': self.path,
                   'last_calibration': (self._last_result or {}).get('message', 'none')}
+        imu = self.imu.state(self._coverage)
+        values.update({'gyro_received': imu['gyro_received'],
+                       'raw_samples_kept': imu['raw_samples'],
+                       'mag_received': imu['mag_received'], 'mag_samples_kept': imu['mag_samples'],
+                       'mag_coverage': imu['mag_coverage']})
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()
