@@ -7,6 +7,7 @@ simulator wrote, within what the fit itself predicts.
 """
 
 import json
+import time
 
 from accel_calib_ros.cli import main
 from accel_calib_ros.core import simulate as sim
@@ -401,3 +402,28 @@ def test_collector_ring_and_decimation_stay_bounded_and_ordered():
     assert list(windows.start) == [20] and list(windows.stop) == [51]
     c.clear()
     assert c.raw_samples() is None and c.mag_samples() is None
+
+
+def test_guide_session_says_the_turns_and_the_sphere_and_stores_both_parts():
+    from accel_calib_ros.cli.guide import _imu_of
+    from accel_calib_ros.cli.guide_session import GuideSession
+    from accel_calib_ros.cli.guide_sources import SimulatedSource
+    source = SimulatedSource(100.0, speed=500.0, seed=1, magnetometer=True)
+    session = GuideSession(100.0)
+    deadline = time.monotonic() + 60.0
+    while not session.enough:
+        assert time.monotonic() < deadline, 'the simulated person never got there'
+        t, a, temp = source.read(session)
+        gyro, mag = _imu_of(source, len(t))
+        session.update(t, a, temp, gyro, mag)
+    status = session.imu_status
+    assert status['gyroscope']['status'] == 'ok' and status['gyroscope']['missing_axes'] == []
+    assert status['magnetometer']['coverage'] >= 0.25 and 'of the sphere' in \
+        status['magnetometer']['advice']
+    cal = session.fit()
+    gyro, mag = session.solve_imu(cal, 0.01, 1.0)
+    assert gyro.calibrated and mag.calibrated, (gyro.reason, mag.reason)
+    left = np.linalg.solve(cal.gyro_T, source.sensor.gyro_T) - np.eye(3)
+    assert np.sqrt(np.sum(left ** 2) / 3) < 3 * cal.gyro_predicted_accuracy
+    np.testing.assert_allclose(cal.magnetometer.hard_iron_uT,
+                               source.sensor.magnetometer.hard_iron, atol=1.0)
