@@ -427,3 +427,17 @@ def test_guide_session_says_the_turns_and_the_sphere_and_stores_both_parts():
     assert np.sqrt(np.sum(left ** 2) / 3) < 3 * cal.gyro_predicted_accuracy
     np.testing.assert_allclose(cal.magnetometer.hard_iron_uT,
                                source.sensor.magnetometer.hard_iron, atol=1.0)
+
+
+def test_wrong_units_are_named_not_fitted(capsys, tmp_path, imu_session):
+    data, _ = imu_session
+    s = load_samples(data)
+    wrong = tmp_path / 'wrong.csv'
+    write_samples_csv(wrong, Samples(s.t, s.accel, s.temp, np.degrees(s.gyro), s.mag * 1000))
+    code, out, err = run(capsys, 'fit', wrong, '-o', tmp_path / 'c.yaml', '--json')
+    assert code == 0, err
+    sensors = json.loads(out)['sensors']
+    assert sensors['gyroscope']['status'] == 'refused'
+    assert 'are gx gy gz in rad/s?' in sensors['gyroscope']['reason']
+    assert sensors['magnetometer']['status'] == 'refused'
+    assert 'are mx my mz in µT?' in sensors['magnetometer']['reason']

@@ -28,7 +28,7 @@ from typing import Optional
 import numpy as np
 
 from .errors import CalibrationError, InputError
-from .model import gyro_problems, magnetometer_problems, MagnetometerPart
+from .model import gyro_problems, magnetometer_problems, MagnetometerPart, MAX_GYRO_BIAS
 
 STATUSES = ('calibrated', 'absent', 'insufficient', 'refused', 'not fitted', 'not collected')
 """Words of :attr:`SensorOutcome.status`."""
@@ -161,16 +161,20 @@ def solve_gyro(samples, windows=None, accel=None, max_error=DEFAULT_MAX_GYRO_ERR
     out.details = _gyro_details(g)
     if g.missing_axes:
         out.reason = g.message
+    elif np.abs(g.bias).max() > MAX_GYRO_BIAS:
+        out.status = 'refused'
+        out.reason = (f'implausible: a gyro bias of {np.abs(g.bias).max():.3g} rad/s (more '
+                      f'than {MAX_GYRO_BIAS:g}); are gx gy gz in rad/s?')
     elif not g.converged:
         out.reason = f'the fit did not converge ({g.message})'
+    elif gyro_problems(g.T):
+        out.status = 'refused'
+        out.reason = f'implausible ({gyro_problems(g.T)[0]}); are gx gy gz in rad/s?'
     elif not g.predicted_accuracy <= max_error:
         out.status = 'refused'
         out.reason = (f'predicted accuracy {100 * g.predicted_accuracy:.3f} % exceeds the '
                       f'limit {100 * max_error:.3g} % (--max-gyro-error); turn through more '
                       'moves about every axis')
-    elif gyro_problems(g.T):
-        out.status = 'refused'
-        out.reason = f'implausible ({gyro_problems(g.T)[0]}); are gx gy gz in rad/s?'
     else:
         out.status, out.reason = 'calibrated', None
     return out
@@ -212,7 +216,10 @@ def solve_magnetometer(samples, windows=None, accel=None, max_error=DEFAULT_MAX_
     out.details = _mag_details(m)
     problems = magnetometer_problems(m.T, m.hard_iron_uT, m.R, m.field_uT, m.dip_deg) \
         if np.isfinite(m.dip_deg) else ['no dip angle']
-    if not m.alignment_fitted:
+    if problems:
+        out.status = 'refused'
+        out.reason = f'implausible ({problems[0]})'
+    elif not m.alignment_fitted:
         out.reason = m.message
     elif not m.converged:
         out.reason = f'the fit did not converge ({m.message})'
@@ -221,9 +228,6 @@ def solve_magnetometer(samples, windows=None, accel=None, max_error=DEFAULT_MAX_
         out.reason = (f'predicted accuracy {m.predicted_accuracy:.3f} µT exceeds the limit '
                       f'{max_error:g} µT (--max-mag-error); turn the sensor through more '
                       'orientations and hold more poses')
-    elif problems:
-        out.status = 'refused'
-        out.reason = f'implausible ({problems[0]})'
     else:
         out.status, out.reason = 'calibrated', None
     return out

@@ -36,6 +36,8 @@ PARAMETER_NAMES = ('T_xx', 'T_xy', 'T_xz', 'T_yy', 'T_yz', 'T_zz', 'b_x', 'b_y',
 """Order of the 9 calibration parameters in covariances (same as ``core.ml``)."""
 
 
+MAX_GYRO_BIAS = 1.0
+"""Largest gyroscope bias believed, rad/s (57 °/s: a larger one means other units)."""
 GYRO_T_DIAGONAL_RANGE = (0.5, 2.0)
 """Diagonal of the gyroscope's T believed (a MEMS gyro is within a few per cent of 1)."""
 MAX_GYRO_CROSS_AXIS = 0.5

@@ -32,7 +32,8 @@ import yaml
 from ..core.accel.thermal import ThermalBand, ThermalTable
 from ..core.errors import CalibrationError, InputError
 from ..core.model import (Calibration, FIELD_RANGE_UT, gyro_problems, magnetometer_problems,
-                          MagnetometerPart, MAX_HARD_IRON_UT, METHODS, PARAMETER_NAMES)
+                          MagnetometerPart, MAX_GYRO_BIAS, MAX_HARD_IRON_UT, METHODS,
+                          PARAMETER_NAMES)
 
 FORMAT = 'accel_calib_ros/calibration'
 VERSION = 1
@@ -45,8 +46,6 @@ GRAVITY_RANGE = (0.1, 100.0)
 """Gravity magnitudes accepted, m/s² (1.0 allows data in units of g)."""
 T_DIAGONAL_RANGE = (1e-6, 1e6)
 """Diagonal of T accepted (readings per true unit; raw counts are about 1.7e3)."""
-MAX_GYRO_BIAS = 1.0
-"""Largest gyroscope bias accepted, rad/s."""
 TEMPERATURE_RANGE = (-100.0, 200.0)
 """Temperatures accepted, °C."""
 MAX_RELATIVE_ACCURACY = 1.0
