@@ -6,9 +6,11 @@ Simulated hand-held sessions (MPU-9250-like accelerometer and gyroscope with ±3
 scale and ±2 % cross-axis errors, AK8963-like magnetometer with up to ±30 µT hard
 iron, ±5 % soft iron and 2° misalignment, 48 µT field at 60° dip, 0.3° hand tremor
 during holds): recovered against true parameters, and the predicted accuracy against
-the actual one. Then the real recordings in ../shared/data: the MPU-6050 session
-(its 92° validation turn) and the Xsens gyroscope gains against the factory values.
-Prints figures, asserts nothing.
+the actual one; then the same through the product's own path (``accel-calib simulate
+--gyro-errors --magnetometer`` and ``accel-calib fit --json``: the statuses, the stored
+parts against the truth file). Then the real recordings in ../shared/data: the MPU-6050
+session (its 92° validation turn) and the Xsens gyroscope gains against the factory
+values. Prints figures, asserts nothing.
 """
 
 import argparse
@@ -19,7 +21,7 @@ import time
 from accel_calib_ros.core import simulate
 from accel_calib_ros.core.accel.calibration import calibrate
 from accel_calib_ros.core.gyro import fit_gyro, integrate
-from accel_calib_ros.core.magnetometer import canonical, fit_magnetometer
+from accel_calib_ros.core.magnetometer import canonical, correct_field, fit_magnetometer
 from accel_calib_ros.core.windows import detect_static_windows
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -138,6 +140,71 @@ def simulated(args):
           f'{100 * rate_error(through.T, sess.sensor.gyro_T):.3f} % integrating through them')
 
 
+def through_cli(sessions, poses):
+    """Print what ``accel-calib fit`` reports and stores on simulated sessions, vs the truth."""
+    import contextlib
+    import io
+    import json
+    import tempfile
+    from accel_calib_ros.cli import main as cli
+    import yaml
+    rows, statuses = [], {}
+    with tempfile.TemporaryDirectory() as folder:
+        for seed in range(sessions):
+            data, truth_path = f'{folder}/s{seed}.csv', f'{folder}/t{seed}.yaml'
+            out = io.StringIO()
+            with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
+                cli(['simulate', '-o', data, '--poses', str(poses), '--seed', str(100 + seed),
+                     '--gyro-errors', '--magnetometer', '--tremor', '0.3', '--truth',
+                     truth_path])
+            out = io.StringIO()
+            t0 = time.perf_counter()
+            with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
+                cli(['fit', data, '--json'])
+            seconds = time.perf_counter() - t0
+            d = json.loads(out.getvalue())
+            for name, part in d['sensors'].items():
+                statuses.setdefault(name, {}).setdefault(part['status'], 0)
+                statuses[name][part['status']] += 1
+            with open(truth_path, encoding='utf-8') as f:
+                truth = yaml.safe_load(f)
+            if d['gyro_T'] is None or d['mag_T'] is None:
+                continue
+            m = truth['magnetometer']
+            T, R, field_uT = canonical(m['T'], m['R'], truth['earth_field']['field_uT'])
+            u = simulate.random_directions(5000, np.random.default_rng(1))
+            raw = (field_uT * u) @ (T @ R).T + m['hard_iron_uT']       # the fit's convention
+            est = correct_field(raw, d['mag_T'], d['mag_hard_iron_uT'], d['mag_R'])
+            rows.append({
+                'g_raw': rate_error(np.eye(3), np.array(truth['gyro_T'])),
+                'g_actual': rate_error(np.array(d['gyro_T']), np.array(truth['gyro_T'])),
+                'g_pred': d['gyro_predicted_accuracy'],
+                'g_bias': np.abs(np.array(d['gyro_bias'])
+                                 - truth['gyro_bias_rad_s']).max(),
+                'm_actual': float(np.sqrt(np.mean(np.sum((est - field_uT * u) ** 2, axis=1)))),
+                'm_pred': d['mag_predicted_accuracy'],
+                'm_hard': np.abs(np.array(d['mag_hard_iron_uT']) - m['hard_iron_uT']).max(),
+                'm_dip': abs(d['mag_dip_deg'] - truth['earth_field']['dip_deg']),
+                'seconds': seconds})
+    print(f'accel-calib simulate --gyro-errors --magnetometer --tremor 0.3 --poses {poses}, '
+          f'then fit --json, {sessions} seeds: statuses {statuses}')
+    if not rows:
+        return
+    table(rows, [('g_raw', 'gyro rate error uncalibrated, %', 100),
+                 ('g_actual', 'gyro rate error with the stored T, %', 100),
+                 ('g_pred', 'gyro_predicted_accuracy, %', 100),
+                 ('g_bias', 'max |gyro_bias error|, mrad/s', 1000),
+                 ('m_actual', 'field error with the stored part, µT', 1),
+                 ('m_pred', 'mag_predicted_accuracy, µT', 1),
+                 ('m_hard', 'max |mag_hard_iron_uT error|, µT', 1),
+                 ('m_dip', 'mag_dip_deg error, deg', 1),
+                 ('seconds', 'fit wall time (all three), s', 1)])
+    for key in ('g', 'm'):
+        ratio = np.array([r[f'{key}_actual'] / r[f'{key}_pred'] for r in rows])
+        print(f'  {"gyro" if key == "g" else "magnetometer"} actual / predicted: RMS '
+              f'{np.sqrt(np.mean(ratio ** 2)):.2f} (range {ratio.min():.2f}-{ratio.max():.2f})')
+
+
 def angle(u, v):
     """Angle between two vectors, degrees."""
     return float(np.degrees(np.arctan2(np.linalg.norm(np.cross(u, v)), u @ v)))
@@ -201,8 +268,12 @@ def main():
     parser.add_argument('--sessions', type=int, default=20)
     parser.add_argument('--poses', type=int, default=24)
     parser.add_argument('--tremor', type=float, default=0.3, help='hand tremor, deg RMS')
+    parser.add_argument('--cli-sessions', type=int, default=10,
+                        help='sessions through accel-calib simulate and fit (0: none)')
     args = parser.parse_args()
     simulated(args)
+    if args.cli_sessions:
+        through_cli(args.cli_sessions, args.poses)
     real_data()
 
 

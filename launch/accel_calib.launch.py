@@ -6,6 +6,7 @@ Usage::
     ros2 launch accel_calib_ros accel_calib.launch.py port:=/dev/ttyACM0
     ros2 launch accel_calib_ros accel_calib.launch.py calibration_file:=/data/imu.yaml
     ros2 launch accel_calib_ros accel_calib.launch.py calibrate:=false chain_madgwick:=true
+    ros2 launch accel_calib_ros accel_calib.launch.py chain_madgwick:=true use_mag:=true
 
 Each node reads its parameter file from this package's ``config/`` directory; the
 ``port`` and ``calibration_file`` arguments override the values there. Then hold the
@@ -15,8 +16,11 @@ sensor still in varied orientations (follow ``/accel_calibration/advice``), call
 ``chain_madgwick:=true`` adds imu_filter_madgwick (``apt install
 ros-jazzy-imu-filter-madgwick``) on the corrected stream: its input ``imu/data_raw`` is
 remapped to ``imu/corrected``, so it fuses the calibrated acceleration and the
-bias-free angular rate and publishes the orientation on ``imu/data`` (no magnetometer,
-ENU world frame, no TF unless ``madgwick_publish_tf:=true``).
+calibrated angular rate and publishes the orientation on ``imu/data`` (ENU world frame,
+no TF unless ``madgwick_publish_tf:=true``). With ``use_mag:=true`` it also fuses the
+magnetometer: its input ``imu/mag`` is remapped to ``imu/mag_corrected`` (published by
+the correction node once the calibration has a magnetometer part), which gives the
+orientation an absolute heading; without it (the default) the heading drifts.
 """
 
 import os
@@ -54,6 +58,9 @@ def generate_launch_description():
                                           '(orientation on imu/data)'),
         DeclareLaunchArgument('madgwick_publish_tf', default_value='false',
                               description='let imu_filter_madgwick publish a TF'),
+        DeclareLaunchArgument('use_mag', default_value='false',
+                              description='imu_filter_madgwick fuses imu/mag_corrected too '
+                                          '(needs a magnetometer calibration)'),
         Node(package=PACKAGE, executable='mpu9250_driver', name='mpu9250_driver',
              output='screen', emulate_tty=True,
              parameters=[os.path.join(config, 'driver.yaml'), {'port': port}]),
@@ -69,7 +76,7 @@ def generate_launch_description():
         Node(package='imu_filter_madgwick', executable='imu_filter_madgwick_node',
              name='imu_filter', output='screen', emulate_tty=True,
              condition=IfCondition(LaunchConfiguration('chain_madgwick')),
-             remappings=[('imu/data_raw', 'imu/corrected')],
-             parameters=[{'use_mag': False, 'world_frame': 'enu',
+             remappings=[('imu/data_raw', 'imu/corrected'), ('imu/mag', 'imu/mag_corrected')],
+             parameters=[{'use_mag': LaunchConfiguration('use_mag'), 'world_frame': 'enu',
                           'publish_tf': LaunchConfiguration('madgwick_publish_tf')}]),
     ])

@@ -350,9 +350,13 @@ def test_gyro_bias_is_estimated_and_apply_subtracts_it(capsys, tmp_path):
     assert run(capsys, 'apply', calib, data, '-o', corrected)[0] == 0
     raw = np.genfromtxt(data, delimiter=',', names=True)
     fixed = np.genfromtxt(corrected, delimiter=',', names=True)
-    for axis, b in zip(('gx', 'gy', 'gz'), true_bias):
-        np.testing.assert_allclose(raw[axis] - fixed[axis], json.loads(out)['gyro_bias'][
-            'xyz'.index(axis[1])], atol=1e-7)
+    # The gyro's scale and misalignment are fitted too (issue 19): raw - bias = T fixed.
+    gyro_T = json.loads(out)['gyro_T']
+    assert gyro_T is not None and np.abs(np.array(gyro_T) - np.eye(3)).max() < 0.01
+    raw_rate = np.column_stack([raw[a] for a in ('gx', 'gy', 'gz')])
+    fixed_rate = np.column_stack([fixed[a] for a in ('gx', 'gy', 'gz')])
+    np.testing.assert_allclose(raw_rate - json.loads(out)['gyro_bias'],
+                               fixed_rate @ np.array(gyro_T).T, atol=1e-7)
 
 
 def test_thermal_fit_reports_band_usability_and_range(capsys, tmp_path, session_csv):

@@ -46,5 +46,9 @@ def test_madgwick_chain_reads_the_corrected_stream(monkeypatch):
     assert madgwick['package'] == 'imu_filter_madgwick'
     assert ('imu/data_raw', 'imu/corrected') in madgwick['remappings']
     assert madgwick['condition'].args[0].args[0] == 'chain_madgwick'
+    # The magnetometer (issue 19): off by default, and from the corrected topic when on.
+    assert args['use_mag'] == 'false'
+    assert ('imu/mag', 'imu/mag_corrected') in madgwick['remappings']
+    assert madgwick['parameters'][0]['use_mag'].args[0] == 'use_mag'
     for name in ('calibration', 'correction', 'driver'):
         assert os.path.exists(os.path.join(ROOT, 'config', f'{name}.yaml'))

@@ -1,4 +1,10 @@
-"""``accel-calib advise``: which pose to hold next, and when it is enough (interface §5)."""
+"""
+``accel-calib advise``: which pose to hold next, and when it is enough (interface §5).
+
+When the data have ``gx gy gz`` it also says which rotation axis the moves between the
+windows have not turned about (the gyroscope's scale and misalignment need all three),
+and with ``mx my mz`` how much of the sphere of field directions the magnetometer saw.
+"""
 
 import math
 
@@ -42,10 +48,35 @@ def run(args, out):
         noise = np.full(3, floor if math.isfinite(floor) else 0.02)
     result = advise(windows.mean, weights, noise, args.gravity, args.method, args.target,
                     args.sigma_floor)
+    imu = imu_advice(samples, windows)
     if args.json:
         d = result.to_dict()
         d['samples'] = len(samples)
+        d.update(imu)
         out(d)
     else:
         print(result.text())
+        for name, part in imu.items():
+            if part['status'] != 'absent':
+                print(f'{name}: {part["advice"]}')
     return 0
+
+
+def imu_advice(samples, windows):
+    """
+    Return the gyroscope and magnetometer advice: ``{'gyroscope': {...}, 'magnetometer': ...}``.
+
+    ``gyroscope``: ``status`` ('absent', 'insufficient' or 'ok'), ``missing_axes``,
+    ``excitation_deg``, ``moves_used`` and ``advice`` (the turn to make between poses);
+    ``magnetometer``: ``status`` ('absent', 'insufficient' or 'ok'), ``coverage``
+    (fraction of the sphere of field directions seen), ``missing_direction`` and ``advice``.
+    """
+    from ..core.imu import field_advice, gyro_advice
+    gyro = gyro_advice(samples, windows if len(windows) else None)
+    if samples.mag is None or not samples.mag_rows.any():
+        mag = {'status': 'absent', 'coverage': None, 'missing_direction': None,
+               'advice': 'the data have no mx my mz'}
+    else:
+        mag = field_advice(samples.mag)
+        mag['status'] = 'ok' if mag.pop('enough') else 'insufficient'
+    return {'gyroscope': gyro, 'magnetometer': mag}

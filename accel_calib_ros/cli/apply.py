@@ -1,4 +1,10 @@
-"""``accel-calib apply``: correct a recording with a calibration file, streamed."""
+"""
+``accel-calib apply``: correct a recording with a calibration file, streamed.
+
+The acceleration always; ``gx gy gz`` with the gyro bias and, when the file has a
+``gyro`` part, its scale and misalignment (``T⁻¹ (raw - bias)``); ``mx my mz`` with the
+``magnetometer`` part when the file has one (else they pass through as recorded).
+"""
 
 import itertools
 import os
@@ -33,7 +39,8 @@ def run(args, out):
     with Progress(os.path.getsize(args.data) if is_csv else None, 'apply',
                   'B' if is_csv else 'rows') as bar:
         pieces = iter_samples(args.data, imu_topic=args.imu_topic, temp_topic=args.temp_topic,
-                              on_read=bar.update if is_csv else None)
+                              on_read=bar.update if is_csv else None,
+                              mag_topic=getattr(args, 'mag_topic', None))
         first = to_si(next(pieces), args)        # m/s², like every piece after it
         pieces = (to_si(piece, args, check=False) for piece in pieces)
         if cal.thermal is not None and cal.thermal.usable and first.temp is None:
@@ -41,7 +48,8 @@ def run(args, out):
                   'have no temperature; applying without drift correction', file=sys.stderr)
         n, outside, sum_before, sum_after = 0, 0, 0.0, 0.0
         gyro_subtracted = first.gyro is not None and cal.gyro_bias is not None
-        with csv_writer(args.output, first.temp is not None, first.gyro is not None) as w:
+        with csv_writer(args.output, first.temp is not None, first.gyro is not None,
+                        has_mag=first.mag is not None) as w:
             for samples in itertools.chain([first], pieces):
                 if cal.temperature_range_c is not None and samples.temp is not None:
                     lo, hi = cal.temperature_range_c
@@ -51,15 +59,18 @@ def run(args, out):
                     gyro = samples.gyro
                     if gyro is not None:
                         gyro = cal.correct_gyro(gyro, samples.temp)
+                    mag = None if samples.mag is None else cal.correct_mag(samples.mag)
                 bad = ~np.all(np.isfinite(corrected), axis=1)
                 if gyro is not None:
                     bad |= ~np.all(np.isfinite(gyro), axis=1)
+                if mag is not None:      # rows without a sample stay empty (NaN)
+                    bad |= samples.mag_rows & ~np.all(np.isfinite(mag), axis=1)
                 if bad.any():       # the atomic writer removes what was written so far
                     raise InputError(
                         f'{int(bad.sum())} rows would be non-finite after correction (first '
                         f't={samples.t[np.argmax(bad)]:.3f} s): the data or the calibration '
                         'are out of range; nothing written')
-                w.write(Samples(samples.t, corrected, samples.temp, gyro))
+                w.write(Samples(samples.t, corrected, samples.temp, gyro, mag))
                 n += len(samples)
                 sum_before += float(np.linalg.norm(samples.accel, axis=1).sum())
                 sum_after += float(np.linalg.norm(corrected, axis=1).sum())
@@ -72,11 +83,23 @@ def run(args, out):
     summary = {'output': args.output, 'samples': n, 'calibration': args.calibration,
                'mean_norm_before': sum_before / n, 'mean_norm_after': sum_after / n,
                'gyro_bias_subtracted': gyro_subtracted,
+               'gyro_corrected': _gyro_words(cal, first),
+               'magnetometer_corrected': first.mag is not None and cal.magnetometer is not None,
                'samples_outside_temperature_range': outside}
     if args.json:
         out(summary)
     else:
         print(f'corrected {n} samples -> {args.output} '
               f'(mean |a| {sum_before / n:.4f} -> {sum_after / n:.4f} m/s²'
-              + (', gyro bias subtracted' if gyro_subtracted else '') + ')')
+              + (f', gyro: {summary["gyro_corrected"]}' if summary['gyro_corrected'] else '')
+              + (', magnetometer corrected' if summary['magnetometer_corrected'] else
+                 ', mx my mz as recorded (no magnetometer calibration)'
+                 if first.mag is not None else '') + ')')
     return 0
+
+
+def _gyro_words(cal, samples):
+    """Say what was done to gx gy gz (None when there are none or nothing was done)."""
+    if samples.gyro is None or (cal.gyro_bias is None and cal.gyro_T is None):
+        return None
+    return 'bias, scale and misalignment' if cal.gyro_T is not None else 'bias subtracted'

@@ -32,10 +32,12 @@ class Parser(argparse.ArgumentParser):
 
 def add_data_args(p):
     """Add the recording argument, the bag topic and the unit options to parser ``p``."""
-    p.add_argument('data', help='CSV file (t, ax, ay, az[, temp, gx, gy, gz]) or rosbag2 '
-                                '(.mcap, .db3 or bag directory)')
+    p.add_argument('data', help='CSV file (t, ax, ay, az[, temp, gx, gy, gz, mx, my, mz]) or '
+                                'rosbag2 (.mcap, .db3 or bag directory)')
     p.add_argument('--imu-topic', help='sensor_msgs/Imu topic in a bag (default: the only one)')
     p.add_argument('--temp-topic', help='sensor_msgs/Temperature topic in a bag')
+    p.add_argument('--mag-topic', help='sensor_msgs/MagneticField topic in a bag (tesla; '
+                                       'default: the only one)')
     add_unit_args(p)
 
 
@@ -183,7 +185,8 @@ def load_data(args):
     size = os.path.getsize(args.data) if os.path.isfile(args.data) else None
     with Progress(size, 'read', 'B') as bar:     # shown only for a long read on a terminal
         samples = load_samples(args.data, imu_topic=args.imu_topic,
-                               temp_topic=args.temp_topic, on_read=bar.update)
+                               temp_topic=args.temp_topic, on_read=bar.update,
+                               mag_topic=getattr(args, 'mag_topic', None))
     return to_si(samples, args)
 
 

@@ -34,6 +34,7 @@ def add_arguments(p):
                    metavar='M_S2',
                    help='refuse a fit whose predicted accuracy (RMS error at 1 g over all '
                         'orientations) is worse than this, m/s² (default %(default)s)')
+    add_imu_arguments(p)
     p.add_argument('--force', action='store_true',
                    help='write the calibration even if the fit did not converge (loud '
                         'warning; JSON still says converged false)')
@@ -45,6 +46,53 @@ def add_arguments(p):
                    help='keep the windows in this SQLite history (default next to the '
                         'calibration file of the nodes) and fit on all windows of --sensor')
     g.add_argument('--sensor', help='sensor id in the history (firmware id, port or name)')
+
+
+def add_imu_arguments(p):
+    """Add the options of the gyroscope and magnetometer parts (spec §9, §10)."""
+    from ..core.imu import DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR
+    g = p.add_argument_group('gyroscope and magnetometer (fitted whenever the data have '
+                             'gx gy gz / mx my mz)')
+    g.add_argument('--max-gyro-error', type=ranged(1e-9, 1.0), default=DEFAULT_MAX_GYRO_ERROR,
+                   metavar='FRACTION',
+                   help='store the gyroscope scale/misalignment only when its predicted '
+                        'accuracy (RMS relative rate error over all directions) is at most '
+                        'this (default %(default)s = 1 %%); otherwise only that part is '
+                        'left out')
+    g.add_argument('--max-mag-error', type=ranged(1e-9, 1e3), default=DEFAULT_MAX_MAG_ERROR,
+                   metavar='UT',
+                   help='store the magnetometer calibration only when its predicted accuracy '
+                        '(RMS field error over all directions) is at most this, µT (default '
+                        '%(default)s); otherwise only that part is left out')
+    g.add_argument('--field', type=ranged(1.0, 1000.0), default=None, metavar='UT',
+                   help='known local field magnitude, µT (e.g. from a geomagnetic model); '
+                        'default: fitted, trusting the magnetometer sensitivity on average')
+
+
+def solve_imu(args, samples, windows, cal):
+    """
+    Solve the gyroscope and magnetometer beside the accelerometer calibration ``cal``.
+
+    Each is judged on its own (``core.imu``): absent or insufficient data, or a fit beyond
+    its limit, leave that part out (``warn_imu`` names what is missing); the
+    accelerometer calibration is never refused for them. The calibrated parts are put
+    into ``cal``.
+
+    :returns: (gyro outcome, magnetometer outcome).
+    """
+    from ..core.imu import solve_gyro, solve_magnetometer, store
+    gyro = solve_gyro(samples, windows, cal, args.max_gyro_error)
+    mag = solve_magnetometer(samples, windows, cal, args.max_mag_error, args.field)
+    store(cal, gyro, mag)
+    return gyro, mag
+
+
+def warn_imu(outcomes):
+    """Warn on stderr about each sensor that is there but not calibrated."""
+    for outcome in outcomes:
+        if outcome.status in ('insufficient', 'refused'):
+            print(f'accel-calib: warning: {outcome.sensor} not calibrated ({outcome.status}): '
+                  f'{outcome.reason}', file=sys.stderr)
 
 
 def _history_path(args):
@@ -145,13 +193,14 @@ def _observations(samples, args):
     for k, reason in outliers:
         dropped.append({'t_start': float(samples.t[windows.start[k]]),
                         't_stop': float(samples.t[windows.stop[k] - 1]), 'reason': reason})
+    detected = windows
     windows = windows.select(keep)
     dropped.sort(key=lambda d: d['t_start'])
     return _Observations(readings=windows.mean, weights=weights[keep], temps=windows.temp,
                          noise=windows.noise_std, count=len(windows),
                          gyro=windows.gyro_mean, dropped=dropped, t_mid=windows.t_mid,
                          mean_count=float(np.mean(windows.count)) if len(windows) else 1.0,
-                         low_passed=windows.low_passed)
+                         low_passed=windows.low_passed, windows=detected)
 
 
 def _band_dict(band):
@@ -218,6 +267,8 @@ def _print_fit(cal, summary, n_obs, mode, samples, dropped, out_path):
         for band in cal.thermal.bands:
             print(f'  band {band.low_c:5.1f}..{band.high_c:5.1f} °C: {band.windows:3d} windows,'
                   f' {"usable" if band.status == "ok" else "not usable: " + band.status}')
+    for line in summary.get('sensor_lines', ()):
+        print(line)
     if out_path:
         print(f'wrote {out_path}')
 
@@ -247,6 +298,34 @@ def _drop_implausible_gyro_bias(cal):
             band.gyro_bias = None
 
 
+def _imu_summary(gyro, mag, refusal):
+    """Return the ``gyro_*`` / ``mag_*`` keys, the per-sensor statuses, a line per sensor."""
+    from ..core.imu import json_keys, sensors_dict
+    d = json_keys(gyro, mag)
+    del d['gyro_bias']          # the fit's own key (spec §6), the same vector when fitted
+    d['sensors'] = sensors_dict('refused' if refusal else 'calibrated', gyro, mag, refusal)
+    d['sensor_lines'] = ['accelerometer: ' + ('calibrated' if refusal is None
+                                              else f'refused: {refusal}'),
+                         gyro.line(), mag.line()]
+    return d
+
+
+def _not_fitted_summary(samples, reason):
+    """Return the IMU keys when the accelerometer could not be calibrated (nothing fitted)."""
+    from ..core.imu import SensorOutcome
+    why = 'not fitted: it needs the gravity directions of a calibrated accelerometer'
+    gyro = SensorOutcome('gyroscope', 'not fitted' if samples.gyro is not None else 'absent',
+                         why if samples.gyro is not None else 'the data have no gx gy gz',
+                         unit='relative')
+    mag = SensorOutcome('magnetometer', 'not fitted' if samples.mag is not None else 'absent',
+                        why if samples.mag is not None else 'the data have no mx my mz',
+                        unit='uT')
+    d = _imu_summary(gyro, mag, reason)
+    d['sensors']['accelerometer']['status'] = 'insufficient'
+    d['sensor_lines'][0] = f'accelerometer: insufficient: {reason}'
+    return d
+
+
 def run(args, out):
     """Run ``accel-calib fit``; return the exit status."""
     check_output(args.output, args.data)
@@ -263,14 +342,18 @@ def run(args, out):
                         mean_count=obs.mean_count)
     except CalibrationError as err:
         if args.json:       # still exactly one JSON object, saying why
+            imu = _not_fitted_summary(samples, str(err))
+            imu.pop('sensor_lines')
             out({'method': args.method, 'mode': args.mode, 'samples': len(samples),
                  'observations': 0 if obs is None else obs.count, 'accepted': False,
                  'refusal': str(err), 'converged': False, 'predicted_accuracy': None,
                  'max_predicted_error': args.max_predicted_error,
-                 'dropped_windows': [] if obs is None else obs.dropped, 'output': None})
+                 'dropped_windows': [] if obs is None else obs.dropped, 'output': None,
+                 **imu})
         raise
     raw_resid = np.sqrt(np.mean((np.linalg.norm(obs.readings, axis=1) - args.gravity) ** 2))
     _drop_implausible_gyro_bias(cal)
+    gyro, mag = solve_imu(args, samples, getattr(obs, 'windows', None), cal)
     from ..core.acceptance import review
     verdict = review(cal, args.max_predicted_error, allow_unconverged=args.force,
                      limit_name='--max-predicted-error')
@@ -291,13 +374,17 @@ def run(args, out):
               'trust this calibration.', file=sys.stderr)
     for warning in verdict.warnings if refusal is None else []:
         print(f'accel-calib: warning: {warning}', file=sys.stderr)
+    if refusal is None:
+        warn_imu((gyro, mag))
     if refusal is None and args.output:
         from ..dataio.calibration_file import save_calibration
         save_calibration(cal, args.output)
     if refusal is None and getattr(args, 'history', None) is not None:
         record_fit(args, cal, obs.temps)
     summary = _fit_summary(cal, extra)
+    summary.update(_imu_summary(gyro, mag, refusal))
     if args.json:
+        summary.pop('sensor_lines')
         out(summary)
     else:
         _print_fit(cal, summary, obs.count, args.mode, len(samples), obs.dropped,

@@ -9,6 +9,13 @@ the board in the next pose, says "enough", fits and writes the calibration atomi
 
 Only the standard library and numpy are imported here at module level; rich, pyserial
 and rclpy are imported when the guide needs them.
+
+When the source gives the angular rate (serial frames, an Imu topic with it, the
+simulation) the screen says which rotation axis the moves have not turned about yet, and
+with a magnetometer (``--mag-topic``, the simulation) how much of the sphere of field
+directions it has seen and where to turn; at the end the gyroscope's scale and
+misalignment and the magnetometer are fitted and stored beside the accelerometer when
+they pass their limits (as ``fit``), else reported.
 """
 
 import math
@@ -62,6 +69,7 @@ def add_arguments(p):
     g.add_argument('--gyro-range', type=int, default=250, choices=(250, 500, 1000, 2000))
     g = p.add_argument_group('ROS topic')
     g.add_argument('--temp-topic', help='sensor_msgs/Temperature topic (optional)')
+    g.add_argument('--mag-topic', help='sensor_msgs/MagneticField topic, tesla (optional)')
     g = p.add_argument_group('simulation')
     g.add_argument('--speed', type=positive_upto(1e4), default=1.0,
                    help='simulated seconds per wall-clock second (default %(default)s)')
@@ -74,6 +82,8 @@ def add_arguments(p):
                    help='simulated temperature, °C')
     g.add_argument('--rate', type=ranged(1.0, 100000.0), default=100.0,
                    help='simulated rate, Hz')
+    g.add_argument('--magnetometer', action='store_true',
+                   help='the simulated sensor has an AK8963-like magnetometer')
 
 
 _FACE_ART = {
@@ -180,6 +190,7 @@ def render(session, source_label, message=''):
         acc = Text(f'{adv.predicted_accuracy:.4f} m/s²  target {adv.target:.4f} m/s²',
                    style='bold green' if good else 'bold yellow')
     grid.add_row('predicted accuracy', acc)
+    _imu_rows(grid, session.imu_status)
     parts = [grid]
     if adv.enough:
         parts.append(Panel(Text('ENOUGH — the calibration meets the target', style='bold green'),
@@ -197,6 +208,19 @@ def render(session, source_label, message=''):
         parts.append(Text('q: stop without writing', style='dim'))
     return Panel(Group(*parts), title=f'accel-calib guide — {source_label}',
                  title_align='left')
+
+
+def _imu_rows(grid, status):
+    """Add the gyroscope's turns and the magnetometer's sphere coverage to the screen."""
+    from rich.text import Text
+    gyro = status.get('gyroscope')
+    if gyro is not None and gyro['status'] != 'absent':
+        ok = gyro['status'] == 'ok'
+        grid.add_row('gyroscope', Text(gyro['advice'], style='green' if ok else 'yellow'))
+    mag = status.get('magnetometer')
+    if mag is not None:
+        grid.add_row('magnetometer', Text(mag['advice'],
+                                          style='green' if mag['enough'] else 'yellow'))
 
 
 class _Keys:
@@ -256,14 +280,14 @@ def run(args, out):
         raise InputError('the guide needs the rich package (pip install rich)') from None
     if args.simulate:
         source = SimulatedSource(args.rate, args.speed, args.seed, args.pose_error, args.turn,
-                                 args.temp, args.gravity)
+                                 args.temp, args.gravity, magnetometer=args.magnetometer)
         rate = args.rate
     elif args.port:
         source = SerialSource(args.port, args.baud, args.ascii, args.accel_range,
                               args.gyro_range)
         rate = None
     else:
-        source = RosSource(args.topic, args.temp_topic)
+        source = RosSource(args.topic, args.temp_topic, getattr(args, 'mag_topic', None))
         rate = None
     console = Console()
     session, recorded, keys = None, [], _Keys()
@@ -290,10 +314,12 @@ def run(args, out):
                     a = a.reshape(-1, 3)
                     pending = None
                 keep = np.all(np.isfinite(a), axis=1)
+                gyro, mag = _imu_of(source, len(keep))
                 t, a, temp = t[keep], a[keep], temp[keep]
+                gyro = None if gyro is None else gyro[keep]
                 if args.record:
                     recorded.append((t, a, temp))
-                session.update(t, a, temp)
+                session.update(t, a, temp, gyro, mag)
                 if session.enough:
                     live.update(render(session, source.label, 'fitting…'), refresh=True)
                     break
@@ -324,6 +350,14 @@ def run(args, out):
         if args.record and recorded:
             _write_record(args.record, recorded)
     return status
+
+
+def _imu_of(source, n):
+    """Return the rates (n, 3) and magnetometer samples of the source's last read, or None."""
+    gyro = getattr(source, 'last_gyro', None)
+    if gyro is not None and len(gyro) != n:
+        gyro = None
+    return gyro, getattr(source, 'last_mag', None)
 
 
 def _rate(stamp_lists):
@@ -363,7 +397,12 @@ def _finish(session, output, label, console, history=None, sensor=None,
     temps = temps[np.isfinite(temps)]
     if cal.temperature_range_c is None and len(temps):
         cal.temperature_range_c = (float(temps.min()), float(temps.max()))
+    from ..core.imu import DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR
+    imu = session.solve_imu(cal, DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR)
     save_calibration(cal, output)
+    for outcome in imu:
+        if outcome.status != 'absent':
+            console.print(outcome.line())
     console.print(f'enough: predicted accuracy {adv.predicted_accuracy:.4f} m/s² ≤ target '
                   f'{adv.target:.4f} m/s² after {len(session.windows)} poses')
     console.print(f'wrote calibration {output}')

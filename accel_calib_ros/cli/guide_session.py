@@ -3,7 +3,10 @@ The state of a guided session: holds, windows, advice, and the fit at the end.
 
 :class:`HoldTracker` decides sample by sample when a pose is held still and for how long;
 :class:`GuideSession` keeps the windows, the advice (``core.advice``) and the pose to ask
-for next, and fits the calibration when it is enough.
+for next, and fits the calibration when it is enough. When the source gives the angular
+rate and the magnetic field, the session also keeps them (``core.imu_stream``) and says
+after each window which rotation axis the moves have not turned about yet and how much
+of the sphere of field directions the magnetometer has seen (``core.imu``).
 """
 
 from collections import deque
@@ -13,6 +16,7 @@ import numpy as np
 
 from .common import G0
 from ..core.advice import advise, coverage, DEFAULT_TARGET
+from ..core.imu_stream import ImuCollector
 
 
 class HoldTracker:
@@ -136,6 +140,8 @@ class GuideSession:
         self.windows = []
         self.samples = 0
         self.advice = advise(np.zeros((0, 3)), np.zeros(0), 0.02, gravity, method, target)
+        self.imu = ImuCollector(max_mag_samples=5000)
+        self.imu_status = {}        # 'gyroscope' / 'magnetometer' advice, when they come
 
     @property
     def enough(self):
@@ -162,12 +168,15 @@ class GuideSession:
             if len(w) else np.full(3, self.tracker.noise_floor)
         return means, weights, temps, noise
 
-    def update(self, t, accel, temp):
+    def update(self, t, accel, temp, gyro=None, mag=None):
         """
         Feed samples; return the windows captured among them.
 
         :param t: (N,) s; ``accel`` (N, 3) m/s²; ``temp`` (N,) °C (NaN when unknown).
+        :param gyro: (N, 3) rad/s, or None when the source has no gyro.
+        :param mag: (times (M,) s, field (M, 3) µT) of the magnetometer samples, or None.
         """
+        self._feed_imu(t, accel, temp, gyro, mag)
         new = []
         for k in range(len(t)):
             window = self.tracker.update(t[k], accel[k], temp[k])
@@ -178,7 +187,39 @@ class GuideSession:
         if new:
             means, weights, _, noise = self.arrays()
             self.advice = advise(means, weights, noise, self.gravity, self.method, self.target)
+            self._imu_advice()
         return new
+
+    def _feed_imu(self, t, accel, temp, gyro, mag):
+        """Keep the rates and the field for the gyroscope and magnetometer advice."""
+        if mag is not None:
+            for tm, field in zip(*mag):
+                self.imu.add_mag(tm, field)
+        if gyro is not None or mag is not None:
+            g = np.full((len(t), 3), np.nan) if gyro is None else np.asarray(gyro, float)
+            self.imu.add_samples(np.column_stack([t, accel, g, temp]))
+
+    def _imu_advice(self):
+        """Recompute the gyroscope and magnetometer advice (after a window)."""
+        from ..core.imu import field_advice, gyro_advice
+        raw = self.imu.raw_samples()
+        if raw is not None and raw.gyro is not None and len(self.windows) >= 2:
+            self.imu_status['gyroscope'] = gyro_advice(
+                raw, self.imu.windows_in(raw.t, self.windows))
+        if len(self.imu.mag) >= 10:
+            step = max(1, len(self.imu.mag) // 2000)
+            self.imu_status['magnetometer'] = field_advice(self.imu.mag[::step, 1:4])
+
+    def solve_imu(self, cal, max_gyro_error, max_mag_error):
+        """
+        Fit the gyroscope and magnetometer beside the accelerometer ``cal``; store what passes.
+
+        :returns: (gyro, magnetometer) ``core.imu.SensorOutcome``.
+        """
+        from ..core.imu import store
+        gyro, mag = self.imu.solve(self.windows, cal, max_gyro_error, max_mag_error)
+        store(cal, gyro, mag)
+        return gyro, mag
 
     def status(self):
         """Return what the screen shows, as a dict."""

@@ -2,7 +2,10 @@
 Where the guide's samples come from: a serial port, a ROS topic or a simulated person.
 
 Each source has ``label``, ``read(session)`` -> (t (N,) s, accel (N, 3) m/s², temp (N,) °C)
-and ``close()``. pyserial and rclpy are imported only by the source that needs them.
+and ``close()``. After a read, ``last_gyro`` holds the N angular rates (rad/s) when the
+source has them (else None) and ``last_mag`` the magnetometer samples read (times (M,)
+s, field (M, 3) µT) when it has one (else None). pyserial and rclpy are imported only by
+the source that needs them.
 """
 
 import math
@@ -39,12 +42,22 @@ class SimulatedSource:
     """
 
     label = 'simulated sensor and person'
+    last_gyro = None
+    last_mag = None
 
     def __init__(self, rate_hz=100.0, speed=1.0, seed=0, error_deg=3.0, turn_s=2.0,
-                 temp=25.0, gravity=G0, tremor=0.02, reaction_s=0.5):
-        from ..core.simulate import mpu9250_like
+                 temp=25.0, gravity=G0, tremor=0.02, reaction_s=0.5, magnetometer=False):
+        from ..core.simulate import ak8963_like, EarthField, mpu9250_like, with_gyro_errors
         self.rng = np.random.default_rng(seed)
         self.sensor = mpu9250_like(self.rng, rate_hz)
+        # The gyroscope (and magnetometer) from generators of their own: the accelerometer
+        # and the person are those of a session without them.
+        self.sensor = with_gyro_errors(self.sensor, np.random.default_rng([seed, 19, 1]))
+        if magnetometer:
+            self.sensor.magnetometer = ak8963_like(np.random.default_rng([seed, 19, 2]))
+        self.field_world = EarthField().world()
+        self._imu_rng = np.random.default_rng([seed, 19, 3])
+        self.orientation = np.eye(3)        # body to world, kept in step with the direction
         self.rate = rate_hz
         self.speed = speed
         self.error_deg = error_deg
@@ -98,21 +111,47 @@ class SimulatedSource:
             return np.zeros(0), np.zeros((0, 3)), np.zeros(0)
         t = self.t + np.arange(n) / self.rate
         true = np.empty((n, 3))
+        rate = np.empty((n, 3))
+        field = np.empty((n, 3))
         for k in range(n):
+            before = self.direction
             motion = self._person(session, t[k])
             true[k] = self.gravity * self.direction + motion
+            # The body rate that turns the gravity direction this way (none about it):
+            # d' = d x w, so w = -(d_k x d_k+1) / dt, integrated into the orientation.
+            rate[k] = -np.cross(before, self.direction) * self.rate
+            self.orientation = self.orientation @ _rotation(rate[k] / self.rate)
+            field[k] = self.orientation.T @ self.field_world
         self.t = t[-1] + 1.0 / self.rate
         temp = np.full(n, float(self.temp))
         raw = self.sensor.measure(true, self.rng, temp)
         raw = raw + self.rng.standard_normal(raw.shape) * self.tremor
+        s = self.sensor
+        self.last_gyro = rate @ s.gyro_T.T + s.gyro_bias \
+            + self._imu_rng.standard_normal((n, 3)) * s.gyro_noise_std
+        mag = s.magnetometer
+        self.last_mag = None if mag is None else (
+            t, mag.distort(field) + self._imu_rng.standard_normal((n, 3)) * mag.noise_std)
         return t, raw, temp
 
     def close(self):
         """Nothing to release."""
 
 
+def _rotation(phi):
+    """Rotation matrix exp([phi]x) of a rotation vector (3,), radians (Rodrigues)."""
+    angle = float(np.linalg.norm(phi))
+    if angle < 1e-12:
+        return np.eye(3)
+    k = np.asarray(phi, float) / angle
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
+
+
 class SerialSource:
     """MPU9250 frames (interface §1) or ASCII lines from a serial port."""
+
+    last_mag = None
 
     def __init__(self, port, baud=1000000, ascii_lines=False, accel_range=2, gyro_range=250):
         try:
@@ -136,9 +175,10 @@ class SerialSource:
             data = self.port.read(max(1, self.port.in_waiting))
         except (serial.SerialException, OSError) as err:
             raise InputError(f'serial port: {err}') from None
-        t, acc, temp = [], [], []
+        t, acc, temp, gyro = [], [], [], []
         for frame in self.parser.feed(data):
-            a, c, _ = self.converter.to_si(frame.counts)
+            a, c, w = self.converter.to_si(frame.counts)
+            gyro.append(w)
             if frame.t_us is None:
                 self._t = time.monotonic()
             else:
@@ -148,6 +188,7 @@ class SerialSource:
             t.append(self._t)
             acc.append(a)
             temp.append(c)
+        self.last_gyro = np.array(gyro, float).reshape(-1, 3)
         return np.array(t), np.array(acc).reshape(-1, 3), np.array(temp)
 
     def close(self):
@@ -158,11 +199,11 @@ class SerialSource:
 class RosSource:
     """sensor_msgs/Imu (and Temperature) from ROS 2 topics; rclpy is imported here."""
 
-    def __init__(self, topic, temp_topic=None):
+    def __init__(self, topic, temp_topic=None, mag_topic=None):
         try:
             import rclpy
             from rclpy.qos import qos_profile_sensor_data
-            from sensor_msgs.msg import Imu, Temperature
+            from sensor_msgs.msg import Imu, MagneticField, Temperature
         except ImportError as err:
             raise InputError(f'ROS 2 (rclpy) is not available: {err}') from None
         from rclpy.executors import SingleThreadedExecutor
@@ -174,18 +215,30 @@ class RosSource:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.buffer = []
+        self.mags = []
+        self.last_gyro = self.last_mag = None
         self.temp = math.nan
         self.node.create_subscription(Imu, topic, self._on_imu, qos_profile_sensor_data)
         if temp_topic:
             self.node.create_subscription(Temperature, temp_topic, self._on_temp,
                                           qos_profile_sensor_data)
+        if mag_topic:
+            self.node.create_subscription(MagneticField, mag_topic, self._on_mag,
+                                          qos_profile_sensor_data)
+
+    @staticmethod
+    def _stamp(msg):
+        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        return stamp if stamp > 0 else time.monotonic()
 
     def _on_imu(self, msg):
-        a = msg.linear_acceleration
-        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        if stamp <= 0:
-            stamp = time.monotonic()
-        self.buffer.append((stamp, (a.x, a.y, a.z), self.temp))
+        a, w = msg.linear_acceleration, msg.angular_velocity
+        rate = (w.x, w.y, w.z) if msg.angular_velocity_covariance[0] >= 0 else (math.nan,) * 3
+        self.buffer.append((self._stamp(msg), (a.x, a.y, a.z), self.temp, rate))
+
+    def _on_mag(self, msg):
+        f = msg.magnetic_field
+        self.mags.append((self._stamp(msg), (f.x * 1e6, f.y * 1e6, f.z * 1e6)))
 
     def _on_temp(self, msg):
         self.temp = float(msg.temperature)
@@ -197,6 +250,11 @@ class RosSource:
             self.executor.spin_once(timeout_sec=0.01)
         got, self.buffer = self.buffer, []
         got = [g for g in got if all(map(math.isfinite, g[1]))]
+        gyro = np.array([g[3] for g in got], float).reshape(-1, 3)
+        self.last_gyro = gyro if len(gyro) and np.isfinite(gyro).all() else None
+        mags, self.mags = self.mags, []
+        self.last_mag = (np.array([m[0] for m in mags]),
+                         np.array([m[1] for m in mags]).reshape(-1, 3)) if mags else None
         return (np.array([g[0] for g in got]), np.array([g[1] for g in got]).reshape(-1, 3),
                 np.array([g[2] for g in got], float))
 

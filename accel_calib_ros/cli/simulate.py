@@ -35,7 +35,66 @@ def add_arguments(p):
     p.add_argument('--noise-from', metavar='ALLAN.json',
                    help='per-sample accel (and gyro) noise from "accel-calib allan --json" '
                         '(white_sample_std, kept at its noise density at --rate)')
+    g = p.add_argument_group('gyroscope and magnetometer (issue 19; off by default)')
+    g.add_argument('--gyro-errors', action='store_true',
+                   help='gyroscope scale ±3 %% and cross-axis ±2 %% errors (MPU-9250 '
+                        'datasheet); the rates still integrate to the simulated turns')
+    g.add_argument('--gyro-range', type=ranged(1.0, 10000.0), default=None, metavar='DPS',
+                   help='gyroscope full scale, °/s: readings clip there (default: none)')
+    g.add_argument('--magnetometer', action='store_true',
+                   help='an AK8963-like magnetometer (±30 µT hard iron, ±5 %% soft iron, 2° '
+                        'misalignment, 0.4 µT noise, 100 Hz): columns mx my mz, µT')
+    g.add_argument('--field', type=ranged(1.0, 1000.0), default=48.0, metavar='UT',
+                   help='Earth field magnitude the magnetometer sees, µT (default %(default)s)')
+    g.add_argument('--dip', type=ranged(-90.0, 90.0), default=60.0, metavar='DEG',
+                   help='field inclination below the horizontal, degrees (default '
+                        '%(default)s)')
+    g.add_argument('--tremor', type=ranged(0.0, 10.0), default=0.0, metavar='DEG',
+                   help='RMS angle a trembling hand turns the sensor while it holds a pose, '
+                        'degrees (default 0: perfectly still)')
     p.add_argument('--json', action='store_true', help='print one JSON object')
+
+
+def _imu_sensor(sensor, args):
+    """
+    Add the gyroscope errors and the magnetometer asked for (their own random streams).
+
+    The draws come from generators of their own (seeded from ``--seed``), so that the
+    accelerometer, the poses and the noise are those of the session without them.
+    """
+    if args.gyro_errors or args.gyro_range:
+        from ..core.simulate import with_gyro_errors
+        rng = np.random.default_rng([args.seed, 19, 1])
+        full_scale = None if args.gyro_range is None else np.radians(args.gyro_range)
+        gyro = with_gyro_errors(sensor, rng, full_scale)
+        if not args.gyro_errors:            # clipping only
+            gyro.gyro_T = np.eye(3)
+        sensor = gyro
+    if args.magnetometer:
+        from ..core.simulate import ak8963_like
+        sensor.magnetometer = ak8963_like(np.random.default_rng([args.seed, 19, 2]))
+    return sensor
+
+
+def imu_truth(sensor, earth_field):
+    """Return the true gyroscope and magnetometer parameters (YAML-ready), or {}."""
+    d = {'gyro_T': np.asarray(sensor.gyro_T, float).tolist()}
+    if np.isfinite(sensor.gyro_full_scale):
+        d['gyro_full_scale_rad_s'] = float(sensor.gyro_full_scale)
+    mag = sensor.magnetometer
+    if mag is not None:
+        from ..core.magnetometer import canonical
+        T, R, field_uT = canonical(mag.T, mag.R, earth_field.field_uT)
+        d['magnetometer'] = {
+            'T': mag.T.tolist(), 'hard_iron_uT': mag.hard_iron.tolist(), 'R': mag.R.tolist(),
+            'noise_std_uT': mag.noise_std.tolist(), 'lsb_uT': float(mag.lsb),
+            'rate_hz': float(mag.rate_hz),
+            'as_fitted': {'T': T.tolist(), 'R': R.tolist(), 'field_uT': field_uT,
+                          'note': 'the same model in the convention of the fit (T upper '
+                                  'triangular, det 1, field scaled to match)'}}
+        d['earth_field'] = {'field_uT': float(earth_field.field_uT),
+                            'dip_deg': float(earth_field.dip_deg)}
+    return d
 
 
 def run(args, out):
@@ -59,6 +118,8 @@ def run(args, out):
     sensor = sim.mpu9250_like(rng, args.rate, effects)
     if args.orthogonal:
         sensor.T = np.diag(np.diag(sensor.T))
+    sensor = _imu_sensor(sensor, args)
+    imu = args.gyro_errors or args.gyro_range or args.magnetometer or args.tremor > 0
     if args.noise_from:
         from ..dataio.noise_file import noise_from_allan
         sensor.noise_std, gyro_noise = noise_from_allan(args.noise_from, args.rate)
@@ -77,6 +138,7 @@ def run(args, out):
         if not 1 <= count <= MAX_POSES:
             raise UsageError(f'accel-calib: --poses must lie in [1, {MAX_POSES}], got {count}')
         directions = (sim.sun_xu_directions(count, rng) if sunxu
+                      else sim.random_poses(count, rng) if imu      # headings fixed too
                       else sim.random_directions(count, rng))
     if len(args.temp) not in (1, 2):
         raise UsageError('accel-calib: --temp takes one value or START END')
@@ -86,13 +148,15 @@ def run(args, out):
                          f'limit is {MAX_SIMULATED_SAMPLES:.3g} (fewer poses, shorter holds '
                          'or a lower --rate)')
     temperature = args.temp[0] if len(args.temp) == 1 else tuple(args.temp)
+    earth_field = sim.EarthField(args.field, args.dip)
     kwargs = {'hold_s': args.hold, 'move_s': args.move, 'rate_hz': args.rate}
     total = sim.session_length(directions, **kwargs)
     last_t = []
 
     def pieces(bar):        # streamed: one piece of the session in memory at a time
         for piece in sim.iter_session(sensor, directions, rng, gravity=args.gravity,
-                                      temperature=temperature, **kwargs):
+                                      temperature=temperature, earth_field=earth_field,
+                                      tremor_deg=args.tremor, **kwargs):
             bar.update(len(piece.samples))
             last_t[:] = [float(piece.samples.t[-1])]
             yield piece.samples
@@ -103,11 +167,14 @@ def run(args, out):
         else:
             write_samples_csv(args.output, pieces(bar))
     truth = sensor_to_dict(sensor, args.gravity)
+    if imu:
+        truth.update(imu_truth(sensor, earth_field))
     if args.truth:
         import yaml
         from ..dataio.atomic import atomic_write_text
         atomic_write_text(args.truth, yaml.safe_dump(truth, sort_keys=False))
     summary = {'output': args.output, 'samples': total, 'poses': len(directions),
+               'magnetometer': sensor.magnetometer is not None,
                'seconds': last_t[0], 'truth': truth}
     if args.json:
         out(summary)

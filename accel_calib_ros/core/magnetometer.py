@@ -76,6 +76,16 @@ floor) keeps the field on one cone: 0.02 on a simulated session, although its pa
 crosses 32 % of the cells; six random poses give 0.05-0.11, the six faces 0.23.
 """
 
+MIN_FIELD_TO_NOISE = 20.0
+"""
+Smallest ratio of the fitted field magnitude to the per-sample noise accepted.
+
+Samples that never changed direction (a sensor that did not turn, or one stuck reading)
+are a blob of noise, to which the ellipsoid fit happily fits a sphere of the noise's
+size: 0.9 µT for 0.4 µT noise (ratio 4); a real session gives 48 µT for 0.4 µT (120),
+an indoor field of 25 µT with a 0.6 µT noise still 40.
+"""
+
 MIN_WINDOWS = 6
 """Static windows with magnetometer samples needed to fit R and the dip (4 unknowns)."""
 
@@ -83,6 +93,33 @@ MAX_ALIGNMENT_STD_DEG = 2.0
 """R whose standard error exceeds this (degrees) is not trusted: it stays identity."""
 
 UPPER = np.triu_indices(3)
+
+
+def coverage_cells(cells=COVERAGE_CELLS):
+    """Centres (cells, 3) of the nearly equal-area cells: a Fibonacci lattice, unit vectors."""
+    i = np.arange(cells) + 0.5
+    z = 1.0 - 2.0 * i / cells
+    phi = np.pi * (1.0 + np.sqrt(5.0)) * i
+    r = np.sqrt(1.0 - z * z)
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+
+
+def visited_cells(directions, cells=COVERAGE_CELLS, min_samples=1):
+    """
+    Tell which cells of :func:`coverage_cells` a set of directions visits.
+
+    :param directions: (N, 3) vectors (normalised here; zero or non-finite rows ignored).
+    :returns: boolean (cells,): at least ``min_samples`` directions fall in the cell (the
+        Voronoi cell of its lattice point).
+    """
+    d = np.asarray(directions, float).reshape(-1, 3)
+    norm = np.linalg.norm(d, axis=1)
+    ok = np.isfinite(norm) & (norm > 0)
+    if not ok.any():
+        return np.zeros(cells, bool)
+    d = d[ok] / norm[ok, None]
+    _, cell = cKDTree(coverage_cells(cells)).query(d)
+    return np.bincount(cell, minlength=cells) >= min_samples
 
 
 def sphere_coverage(directions, cells=COVERAGE_CELLS, min_samples=1):
@@ -98,20 +135,7 @@ def sphere_coverage(directions, cells=COVERAGE_CELLS, min_samples=1):
     :param min_samples: directions needed for a cell to count.
     :returns: float in [0, 1].
     """
-    d = np.asarray(directions, float).reshape(-1, 3)
-    norm = np.linalg.norm(d, axis=1)
-    ok = np.isfinite(norm) & (norm > 0)
-    if not ok.any():
-        return 0.0
-    d = d[ok] / norm[ok, None]
-    i = np.arange(cells) + 0.5
-    z = 1.0 - 2.0 * i / cells
-    phi = np.pi * (1.0 + np.sqrt(5.0)) * i
-    r = np.sqrt(1.0 - z * z)
-    lattice = np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
-    _, cell = cKDTree(lattice).query(d)
-    hits = np.bincount(cell, minlength=cells)
-    return float(np.mean(hits >= min_samples))
+    return float(np.mean(visited_cells(directions, cells, min_samples)))
 
 
 def canonical(T, R, field_uT, field_known=False):
@@ -369,6 +393,13 @@ def fit_magnetometer(samples, windows=None, accel=None, field_uT=None,
             'of directions (less about the true centre): turn the sensor through many '
             'orientations, upside down and on each side, while recording') from None
     T1, hard_iron = ml.T, ml.bias
+    radius = float(np.linalg.det(T1)) ** (1.0 / 3.0)
+    if not radius >= MIN_FIELD_TO_NOISE * ml.sigma:
+        raise CalibrationError(
+            f'the magnetometer samples hardly change direction (an ellipsoid of {radius:.2g} µT '
+            f'fits them, {radius / ml.sigma:.1f} times their noise of {ml.sigma:.2g} µT; needs '
+            f'{MIN_FIELD_TO_NOISE:g}): they cover 0% of the sphere of field directions; turn the '
+            'sensor through many orientations, upside down and on each side, while recording')
     coverage = sphere_coverage(ml.directions)
     spread = float(np.linalg.eigvalsh(ml.directions.T @ ml.directions / n)[0])
     if coverage < min_coverage or (min_coverage > 0 and spread < MIN_SPREAD):

@@ -9,8 +9,17 @@ Convention (spec section 3)::
 ``T`` is upper triangular and dimensionless (scale x non-orthogonality, Sun & Xu
 eq. 1-4), ``bias`` in m/s², ``drift`` from the temperature-band tables (zero when
 there are none). The gyroscope bias (spec section 6) is ``raw = true + gyro_bias``
-in rad/s. This module is numpy and the standard library only (no scipy, no file
-I/O): reading and writing files lives in ``accel_calib_ros.dataio.calibration_file``.
+in rad/s. Optional parts for the other two sensors of the IMU (spec §9, §10):
+
+    raw_gyro = gyro_T @ true_rate + gyro_bias            (rad/s)
+    raw_mag  = mag.T @ mag.R @ field_body + mag.hard_iron_uT   (µT)
+
+``gyro_T`` is None when the gyroscope's scale and misalignment were not calibrated
+(then the rate is only bias-corrected); ``magnetometer`` is None without a
+magnetometer calibration. There is one gyro bias, ``gyro_bias`` (a file stores it as
+``gyro_bias_rad_s`` and as ``gyro.bias``, always equal). This module is numpy and the
+standard library only (no scipy, no file I/O): reading and writing files lives in
+``accel_calib_ros.dataio.calibration_file``.
 """
 
 from dataclasses import dataclass, field
@@ -25,6 +34,123 @@ METHODS = ('ml', 'ml-bc', 'gn', 'ellipsoid')
 
 PARAMETER_NAMES = ('T_xx', 'T_xy', 'T_xz', 'T_yy', 'T_yz', 'T_zz', 'b_x', 'b_y', 'b_z')
 """Order of the 9 calibration parameters in covariances (same as ``core.ml``)."""
+
+
+MAX_GYRO_BIAS = 1.0
+"""Largest gyroscope bias believed, rad/s (57 °/s: a larger one means other units)."""
+GYRO_T_DIAGONAL_RANGE = (0.5, 2.0)
+"""Diagonal of the gyroscope's T believed (a MEMS gyro is within a few per cent of 1)."""
+MAX_GYRO_CROSS_AXIS = 0.5
+"""Largest off-diagonal entry of the gyroscope's T believed."""
+MAG_T_DIAGONAL_RANGE = (0.2, 5.0)
+"""Diagonal of the magnetometer's soft iron T believed."""
+MAX_HARD_IRON_UT = 5000.0
+"""Largest hard iron believed, µT (the AK8963 reads ±4912 µT)."""
+FIELD_RANGE_UT = (1.0, 1000.0)
+"""Field magnitudes believed, µT (the Earth's is 22-67 µT)."""
+MAX_CONDITION = 10.0
+"""Largest condition number of a T believed (a real sensor is within a few per cent of 1)."""
+ROTATION_TOLERANCE = 1e-6
+"""How far a stored rotation may be from one (max |RᵀR - I| and |det R - 1|)."""
+
+
+def matrix_problems(T, name, diagonal_range):
+    """
+    Reasons a 3x3 sensor matrix is implausible, or [] (diagonal, orientation, condition).
+
+    :param T: (3, 3) finite matrix.
+    :param name: its name in the messages (e.g. 'gyro.T').
+    :param diagonal_range: (low, high) allowed for each diagonal entry.
+    """
+    T = np.asarray(T, float).reshape(3, 3)
+    diag = np.diag(T)
+    low, high = diagonal_range
+    if np.any(diag < low) or np.any(diag > high):
+        return [f'the diagonal of {name} must lie in [{low:g}, {high:g}], got '
+                f'{np.array2string(diag, precision=4)}']
+    if not np.linalg.det(T) > 0:
+        return [f'{name} must have a positive determinant (a reflection swaps an axis)']
+    cond = np.linalg.cond(T)
+    if not cond <= MAX_CONDITION:
+        return [f'{name} is ill-conditioned (condition number {cond:.3g} > '
+                f'{MAX_CONDITION:g})']
+    return []
+
+
+def gyro_problems(T):
+    """Reasons a gyroscope T (3, 3) is implausible for a MEMS gyro in rad/s, or []."""
+    problems = matrix_problems(T, 'gyro.T', GYRO_T_DIAGONAL_RANGE)
+    off = np.abs(np.asarray(T, float).reshape(3, 3)[~np.eye(3, dtype=bool)])
+    if not problems and np.any(off > MAX_GYRO_CROSS_AXIS):
+        problems.append(f'gyro.T has a cross-axis term {off.max():.3g} above '
+                        f'{MAX_GYRO_CROSS_AXIS:g}')
+    return problems
+
+
+def magnetometer_problems(T, hard_iron_uT, R, field_uT, dip_deg):
+    """Reasons a magnetometer calibration is implausible (µT, degrees), or []."""
+    problems = matrix_problems(T, 'magnetometer.T', MAG_T_DIAGONAL_RANGE)
+    h = np.asarray(hard_iron_uT, float).reshape(3)
+    if np.any(np.abs(h) > MAX_HARD_IRON_UT):
+        problems.append(f'hard iron {np.abs(h).max():.0f} µT exceeds {MAX_HARD_IRON_UT:g} µT '
+                        '(are mx my mz in µT?)')
+    R = np.asarray(R, float).reshape(3, 3)
+    if np.max(np.abs(R.T @ R - np.eye(3))) > ROTATION_TOLERANCE or \
+            abs(np.linalg.det(R) - 1.0) > ROTATION_TOLERANCE:
+        problems.append('magnetometer.R must be a rotation matrix (orthonormal, '
+                        'determinant +1)')
+    low, high = FIELD_RANGE_UT
+    if not low <= field_uT <= high:
+        problems.append(f'field {field_uT:.3g} µT outside [{low:g}, {high:g}] µT '
+                        '(are mx my mz in µT?)')
+    if not -90.0 <= dip_deg <= 90.0:
+        problems.append(f'dip {dip_deg:.3g}° outside [-90, 90]°')
+    return problems
+
+
+@dataclass
+class MagnetometerPart:
+    """
+    A fitted magnetometer calibration (spec §10): ``raw = T @ R @ field + hard_iron``.
+
+    :param T: (3, 3) soft iron, dimensionless (upper triangular as fitted).
+    :param hard_iron_uT: (3,) µT, magnetometer frame.
+    :param R: (3, 3) rotation from the accelerometer frame to the magnetometer's.
+    :param field_uT: local field magnitude, µT.
+    :param dip_deg: inclination of the field below the horizontal, degrees.
+    :param predicted_accuracy: RMS error of the corrected field over field directions
+        uniform on the sphere, µT (from the fit's covariance), or None when unknown.
+    :param noise_std_uT: per-sample noise of one axis seen in the fit, µT, or None.
+    """
+
+    T: np.ndarray
+    hard_iron_uT: np.ndarray
+    R: np.ndarray
+    field_uT: float
+    dip_deg: float
+    predicted_accuracy: float = None
+    noise_std_uT: float = None
+
+    def __post_init__(self):
+        self.T = np.asarray(self.T, dtype=float).reshape(3, 3)
+        self.R = np.asarray(self.R, dtype=float).reshape(3, 3)
+        self.hard_iron_uT = np.asarray(self.hard_iron_uT, dtype=float).reshape(3).copy()
+        self.field_uT = float(self.field_uT)
+        self.dip_deg = float(self.dip_deg)
+        if self.predicted_accuracy is not None:
+            self.predicted_accuracy = float(self.predicted_accuracy)
+        if self.noise_std_uT is not None:
+            self.noise_std_uT = float(self.noise_std_uT)
+
+    @property
+    def correction(self):
+        """(3, 3) matrix M with ``field = M @ (raw - hard_iron)``: ``Rᵀ T⁻¹``."""
+        return self.R.T @ np.linalg.inv(self.T)
+
+    def correct(self, raw):
+        """Field (N, 3) µT in the accelerometer frame from raw readings (N, 3) µT."""
+        raw = np.atleast_2d(np.asarray(raw, float))
+        return (raw - self.hard_iron_uT) @ self.correction.T
 
 
 def _optional_vector(value, size):
@@ -57,6 +183,11 @@ class Calibration:
     :param information: the information of the observations of the fit
         (``core.information.Information``: the source of the poses a refusal names);
         not stored in files.
+    :param gyro_T: (3, 3) gyroscope scale x misalignment (raw = gyro_T @ true + bias),
+        or None when only the bias is calibrated (spec §9).
+    :param gyro_predicted_accuracy: RMS relative error of the corrected rate over rate
+        directions uniform on the sphere (0.001 = 0.1 %), or None.
+    :param magnetometer: MagnetometerPart, or None (spec §10).
     """
 
     T: np.ndarray
@@ -81,6 +212,9 @@ class Calibration:
     sensor_id: str = None
     cross_axis: object = None
     information: object = None
+    gyro_T: np.ndarray = None
+    gyro_predicted_accuracy: float = None
+    magnetometer: MagnetometerPart = None
 
     def __post_init__(self):
         self.T = np.asarray(self.T, dtype=float).reshape(3, 3)
@@ -97,6 +231,10 @@ class Calibration:
             self.level_roll_pitch_rad = tuple(float(v) for v in self.level_roll_pitch_rad)
         if self.predicted_accuracy is not None:
             self.predicted_accuracy = float(self.predicted_accuracy)
+        if self.gyro_T is not None:
+            self.gyro_T = np.asarray(self.gyro_T, dtype=float).reshape(3, 3).copy()
+        if self.gyro_predicted_accuracy is not None:
+            self.gyro_predicted_accuracy = float(self.gyro_predicted_accuracy)
         if not self.created:
             self.created = datetime.datetime.now(datetime.timezone.utc).isoformat(
                 timespec='seconds')
@@ -159,9 +297,28 @@ class Calibration:
         return np.tile(self.gyro_bias, (n, 1))
 
     def correct_gyro(self, gyro, temp=None):
-        """Angular rate (N, 3) rad/s with the gyroscope bias removed."""
+        """
+        Angular rate (N, 3) rad/s: ``gyro_T⁻¹ (raw - bias)``, or ``raw - bias`` without T.
+
+        The bias is the one of :meth:`gyro_bias_at` (per temperature band when the tables
+        carry one); without any gyro calibration the rate passes through.
+        """
         gyro = np.atleast_2d(np.asarray(gyro, float))
-        return gyro - self.gyro_bias_at(temp, len(gyro))
+        rate = gyro - self.gyro_bias_at(temp, len(gyro))
+        if self.gyro_T is None:
+            return rate
+        return np.linalg.solve(self.gyro_T, rate.T).T
+
+    def correct_mag(self, mag):
+        """
+        Magnetic field (N, 3) µT in the accelerometer frame from raw readings (N, 3) µT.
+
+        Without a magnetometer calibration the field passes through; NaN rows stay NaN.
+        """
+        mag = np.atleast_2d(np.asarray(mag, float))
+        if self.magnetometer is None:
+            return mag
+        return self.magnetometer.correct(mag)
 
     def level_rotation(self):
         """

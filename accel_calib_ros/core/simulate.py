@@ -510,7 +510,7 @@ def iter_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=100.0,
             field_body = raw_mag = None
             if mag is not None:
                 field_body = np.broadcast_to(inverse.apply(earth_field.world()), (m, 3))
-                raw_mag = _measure_mag(mag, field_body, t, dt, extra)
+                raw_mag = measure_mag(mag, field_body, t, dt, extra)
             pieces.append((t, raw, temp, gyro, true_accel, pose, true_rate, field_body,
                            raw_mag))
             rows += m
@@ -540,7 +540,7 @@ def _spawn(rng):
         return np.random.default_rng(rng.bit_generator.random_raw())
 
 
-def _measure_mag(mag, field_body, t, dt, rng):
+def measure_mag(mag, field_body, t, dt, rng):
     """
     Raw magnetometer rows (m, 3) µT for the body field, NaN where it takes no sample.
 

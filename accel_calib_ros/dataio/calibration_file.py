@@ -12,6 +12,14 @@ non-UTF-8 file, broken or deeply nested YAML - into one
 :func:`save_calibration` refuses to write anything that the loader would refuse and
 replaces the file atomically, creating its directory. Imports yaml, numpy and the
 scipy-free ``core.model`` only.
+
+The optional IMU parts (spec §9, §10) are validated the same way: ``gyro: {T, bias,
+predicted_accuracy}`` (T well-conditioned, near identity; bias as ``gyro_bias_rad_s``)
+and ``magnetometer: {T, hard_iron_uT, R, field_uT, dip_deg, predicted_accuracy}`` (T
+well-conditioned, R a rotation, plausible field and dip). One gyro bias per file: the
+writer puts the same vector in ``gyro_bias_rad_s`` and ``gyro.bias``; the loader takes
+``gyro.bias`` when only it is given and refuses a file whose two differ (by more than
+``SAME_GYRO_BIAS_RAD_S``), so neither silently wins over the other.
 """
 
 import math
@@ -23,7 +31,9 @@ import yaml
 
 from ..core.accel.thermal import ThermalBand, ThermalTable
 from ..core.errors import CalibrationError, InputError
-from ..core.model import Calibration, METHODS, PARAMETER_NAMES
+from ..core.model import (Calibration, FIELD_RANGE_UT, gyro_problems, magnetometer_problems,
+                          MagnetometerPart, MAX_GYRO_BIAS, MAX_HARD_IRON_UT, METHODS,
+                          PARAMETER_NAMES)
 
 FORMAT = 'accel_calib_ros/calibration'
 VERSION = 1
@@ -36,10 +46,12 @@ GRAVITY_RANGE = (0.1, 100.0)
 """Gravity magnitudes accepted, m/s² (1.0 allows data in units of g)."""
 T_DIAGONAL_RANGE = (1e-6, 1e6)
 """Diagonal of T accepted (readings per true unit; raw counts are about 1.7e3)."""
-MAX_GYRO_BIAS = 1.0
-"""Largest gyroscope bias accepted, rad/s."""
 TEMPERATURE_RANGE = (-100.0, 200.0)
 """Temperatures accepted, °C."""
+MAX_RELATIVE_ACCURACY = 1.0
+"""Largest gyroscope predicted accuracy accepted (relative: 1 = 100 % of the rate)."""
+SAME_GYRO_BIAS_RAD_S = 1e-9
+"""``gyro.bias`` and ``gyro_bias_rad_s`` must agree to this, rad/s (one bias per file)."""
 
 
 def default_calibration_path():
@@ -102,6 +114,36 @@ def _to_dict(cal):
             'matrix': [_floats(row) for row in cal.covariance]}
     if cal.thermal is not None:
         d['thermal'] = cal.thermal.to_dict()
+    d.update(_imu_parts_to_dict(cal))
+    return d
+
+
+def _imu_parts_to_dict(cal):
+    """
+    Return the optional ``gyro`` and ``magnetometer`` blocks (spec §9, §10).
+
+    ``gyro.bias`` is the same vector as ``gyro_bias_rad_s`` (written for readers that know
+    only spec §6): one bias per file.
+    """
+    d = {}
+    if cal.gyro_T is not None:
+        bias = np.zeros(3) if cal.gyro_bias is None else cal.gyro_bias
+        d['gyro'] = {'model': 'raw = T @ true + bias; true = inv(T) @ (raw - bias)',
+                     'units': 'T dimensionless, bias rad/s, predicted_accuracy relative RMS '
+                              'over rate directions',
+                     'T': [_floats(row) for row in cal.gyro_T], 'bias': _floats(bias),
+                     'predicted_accuracy': _finite_or_none(cal.gyro_predicted_accuracy)}
+    mag = cal.magnetometer
+    if mag is not None:
+        d['magnetometer'] = {
+            'model': 'raw = T @ R @ field + hard_iron; field = R.T @ inv(T) @ (raw - hard_iron)',
+            'frame': 'field in the accelerometer frame; R rotates it into the magnetometer frame',
+            'T': [_floats(row) for row in mag.T], 'hard_iron_uT': _floats(mag.hard_iron_uT),
+            'R': [_floats(row) for row in mag.R], 'field_uT': float(mag.field_uT),
+            'dip_deg': float(mag.dip_deg),
+            'predicted_accuracy': _finite_or_none(mag.predicted_accuracy)}
+        if mag.noise_std_uT is not None:
+            d['magnetometer']['noise_std_uT'] = float(mag.noise_std_uT)
     return d
 
 
@@ -201,6 +243,40 @@ def _validate_T(T):
         raise _Bad(f'T is ill-conditioned (condition number {cond:.3g} > {MAX_CONDITION:g})')
 
 
+def _gyro_part(value, gyro_bias):
+    """Parse the ``gyro`` block; return (T, bias, predicted accuracy)."""
+    g = _mapping(value, 'gyro')
+    T = _matrix(g.get('T'), 'gyro.T', 3, 3)
+    for problem in gyro_problems(T):
+        raise _Bad(problem)
+    bias = _vector(g.get('bias'), 'gyro.bias', 3, -MAX_GYRO_BIAS, MAX_GYRO_BIAS)
+    if gyro_bias is not None and np.max(np.abs(gyro_bias - bias)) > SAME_GYRO_BIAS_RAD_S:
+        raise _Bad('gyro.bias differs from gyro_bias_rad_s: a file carries one gyro bias '
+                   '(give both the same value, or only one of them)')
+    accuracy = _optional(g, 'predicted_accuracy', lambda v: _number(
+        v, 'gyro.predicted_accuracy', 0.0, MAX_RELATIVE_ACCURACY))
+    return T, bias, accuracy
+
+
+def _magnetometer_part(value):
+    """Parse the ``magnetometer`` block into a MagnetometerPart."""
+    m = _mapping(value, 'magnetometer')
+    T = _matrix(m.get('T'), 'magnetometer.T', 3, 3)
+    hard_iron = _vector(m.get('hard_iron_uT'), 'magnetometer.hard_iron_uT', 3,
+                        -MAX_HARD_IRON_UT, MAX_HARD_IRON_UT)
+    R = _matrix(m.get('R'), 'magnetometer.R', 3, 3)
+    field_uT = _number(m.get('field_uT'), 'magnetometer.field_uT', *FIELD_RANGE_UT)
+    dip_deg = _number(m.get('dip_deg'), 'magnetometer.dip_deg', -90.0, 90.0)
+    for problem in magnetometer_problems(T, hard_iron, R, field_uT, dip_deg):
+        raise _Bad(problem)
+    return MagnetometerPart(
+        T=T, hard_iron_uT=hard_iron, R=R, field_uT=field_uT, dip_deg=dip_deg,
+        predicted_accuracy=_optional(m, 'predicted_accuracy', lambda v: _number(
+            v, 'magnetometer.predicted_accuracy', 0.0, FIELD_RANGE_UT[1])),
+        noise_std_uT=_optional(m, 'noise_std_uT', lambda v: _number(
+            v, 'magnetometer.noise_std_uT', 0.0, FIELD_RANGE_UT[1])))
+
+
 def _thermal(value, gravity_raw):
     d = _mapping(value, 'thermal')
     width = _number(d.get('band_width_c'), 'thermal.band_width_c', 1e-3, 1e3)
@@ -283,6 +359,11 @@ def _calibration(d):
                       lambda v: _vector(v, 'level_roll_pitch_rad', 2, -math.pi, math.pi))
     if level is not None and abs(level[1]) > math.pi / 2:
         raise _Bad('level_roll_pitch_rad: pitch must lie in [-pi/2, pi/2]')
+    gyro_bias = _optional(d, 'gyro_bias_rad_s', lambda v: _vector(
+        v, 'gyro_bias_rad_s', 3, -MAX_GYRO_BIAS, MAX_GYRO_BIAS))
+    gyro_T = gyro_accuracy = None
+    if d.get('gyro') is not None:
+        gyro_T, gyro_bias, gyro_accuracy = _gyro_part(d['gyro'], gyro_bias)
     return Calibration(
         T=T, bias=bias, gravity=gravity, method=method, covariance=cov,
         residual_rms=float('nan') if fit.get('residual_rms_m_s2') is None else _number(
@@ -299,11 +380,12 @@ def _calibration(d):
         source=_string(d.get('source'), 'source'),
         predicted_accuracy=_optional(d, 'predicted_accuracy_m_s2', lambda v: _number(
             v, 'predicted_accuracy_m_s2', 0.0)),
-        gyro_bias=_optional(d, 'gyro_bias_rad_s', lambda v: _vector(
-            v, 'gyro_bias_rad_s', 3, -MAX_GYRO_BIAS, MAX_GYRO_BIAS)),
+        gyro_bias=gyro_bias,
         temperature_range_c=None if temp_range is None else tuple(temp_range),
         level_roll_pitch_rad=None if level is None else tuple(level),
-        sensor_id=_optional(d, 'sensor_id', lambda v: _string(v, 'sensor_id', 200)))
+        sensor_id=_optional(d, 'sensor_id', lambda v: _string(v, 'sensor_id', 200)),
+        gyro_T=gyro_T, gyro_predicted_accuracy=gyro_accuracy,
+        magnetometer=_optional(d, 'magnetometer', _magnetometer_part))
 
 
 def calibration_from_dict(d):

@@ -2,7 +2,9 @@
 The spec's CSV (interface section 2): read in blocks, validated, written atomically.
 
 A header row names the columns; required ``t``, ``ax``, ``ay``, ``az``; optional
-``temp`` and ``gx``, ``gy``, ``gz``; other columns are ignored; names are matched
+``temp``, ``gx``, ``gy``, ``gz`` and ``mx``, ``my``, ``mz`` (µT, accelerometer frame; all
+three cells empty in a row without a magnetometer sample, as the magnetometer runs
+slower than the accelerometer); other columns are ignored; names are matched
 case-insensitively after stripping spaces. Rows are parsed in blocks of
 ``CHUNK_ROWS`` (fast path), and a file that the fast path refuses is read again line
 by line to say which line and which cell are wrong. Cells must be finite and within
@@ -12,20 +14,22 @@ by line to say which line and which cell are wrong. Cells must be finite and wit
 import contextlib
 import csv
 import itertools
+import math
 import os
 import warnings
 
 import numpy as np
 
 from .atomic import atomic_path
-from .formats import GYRO_COLUMNS, listed, MAX_LISTED, one_line, REQUIRED_COLUMNS, STANDARD_COLUMNS
+from .formats import (GYRO_COLUMNS, listed, MAG_COLUMNS, MAX_LISTED, one_line, REQUIRED_COLUMNS,
+                      STANDARD_COLUMNS)
 from ..core.errors import InputError
 from ..core.samples import Samples
 
 
 PLAUSIBLE_LIMIT = {'time t': 1e12, 'acceleration ax, ay, az': 1e6, 'temperature': 1e3,
-                   'gyro gx, gy, gz': 1e6}
-"""Largest magnitude a CSV cell may hold per column group (s, m/s² or counts, °C, rad/s)."""
+                   'gyro gx, gy, gz': 1e6, 'magnetic field mx, my, mz': 1e6}
+"""Largest magnitude a CSV cell may hold per column group (s, m/s² or counts, °C, rad/s, µT)."""
 
 
 def _open_text(path):
@@ -104,7 +108,27 @@ def _column_layout(names, path):
         missing = [c for c in GYRO_COLUMNS if c not in layout]
         raise InputError(f'{path}: gyro columns incomplete: found {", ".join(gyro)} but not '
                          f'{", ".join(missing)}; give all of gx, gy, gz or none')
+    _check_mag_layout(layout, path)
     return layout
+
+
+def _check_mag_layout(layout, path):
+    """Refuse a header with some but not all of mx, my, mz."""
+    mag = [c for c in MAG_COLUMNS if c in layout]
+    if mag and len(mag) < 3:
+        missing = [c for c in MAG_COLUMNS if c not in layout]
+        raise InputError(f'{path}: magnetometer columns incomplete: found {", ".join(mag)} but '
+                         f'not {", ".join(missing)}; give all of mx, my, mz or none')
+
+
+def _mag_positions(layout):
+    """File column indices of mx, my, mz (empty cells allowed there), or ()."""
+    return tuple(layout[c] for c in MAG_COLUMNS if c in layout)
+
+
+def _empty_is_nan(text):
+    """Parse a magnetometer cell: an empty one is NaN (a row without a sample)."""
+    return float(text) if text.strip() else math.nan
 
 
 def _data_lines(path, header_lineno, rows):
@@ -138,7 +162,8 @@ def _columns(data, used):
     three side-by-side columns (the reader parses them in STANDARD_COLUMNS order).
     """
     out = {n: data[:, i] for i, n in enumerate(used)}
-    for key, names in (('accel', ('ax', 'ay', 'az')), ('gyro', GYRO_COLUMNS)):
+    for key, names in (('accel', ('ax', 'ay', 'az')), ('gyro', GYRO_COLUMNS),
+                       ('mag', MAG_COLUMNS)):
         if all(n in used for n in names):
             i = used.index(names[0])
             if used[i:i + 3] == list(names):
@@ -146,12 +171,17 @@ def _columns(data, used):
     return out
 
 
-def _parse_fast(f, columns):
-    """Parse the selected columns with numpy's C reader; raises ValueError on any bad cell."""
+def _parse_fast(f, columns, empty_ok=()):
+    """
+    Parse the selected columns with numpy's C reader; raises ValueError on any bad cell.
+
+    :param empty_ok: file column indices whose empty cells are NaN (the magnetometer's).
+    """
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')  # "input contained no data" for a header-only file
         return np.loadtxt(f, delimiter=',', usecols=columns, ndmin=2, dtype=float,
-                          comments='#', quotechar='"')
+                          comments='#', quotechar='"',
+                          converters=dict.fromkeys(empty_ok, _empty_is_nan) or None)
 
 
 def _parse_careful(path, header_lineno, layout, names):
@@ -186,12 +216,13 @@ def _parse_careful(path, header_lineno, layout, names):
             raise InputError(f'{path}: malformed CSV ({one_line(exc)})') from None
     empty = {n: [i for i, v in enumerate(cells[n]) if v == ''] for n in used}
     n_rows = len(lines)
-    optional_groups = [('temp',), GYRO_COLUMNS]
+    optional_groups = [('temp',), GYRO_COLUMNS, MAG_COLUMNS]
     for group in optional_groups:
         if all(n in layout for n in group) and all(len(empty[n]) == n_rows for n in group):
             for n in group:  # column present but never filled: not recorded
                 del cells[n]
                 del empty[n]
+    _mag_rows_without_sample(path, cells, empty, lines)
     for name, rows in empty.items():
         if rows:
             where = listed(lines[i] for i in rows)
@@ -213,22 +244,46 @@ def _parse_careful(path, header_lineno, layout, names):
     return out, np.asarray(lines)
 
 
+def _mag_rows_without_sample(path, cells, empty, lines):
+    """
+    Accept rows whose three magnetometer cells are all empty (NaN: no sample there).
+
+    Changes ``cells`` and ``empty`` in place; a row with one or two of them empty is an
+    InputError naming its lines.
+    """
+    if not all(n in cells for n in MAG_COLUMNS):
+        return
+    counts = {}
+    for name in MAG_COLUMNS:
+        for i in empty[name]:
+            counts[i] = counts.get(i, 0) + 1
+    partial = sorted(i for i, k in counts.items() if k < len(MAG_COLUMNS))
+    if partial:
+        raise InputError(f'{path}: magnetometer cells partly empty on line(s) '
+                         f'{listed(lines[i] for i in partial)}; a row without a magnetometer '
+                         'sample leaves all of mx, my, mz empty')
+    for name in MAG_COLUMNS:
+        for i in empty[name]:
+            cells[name][i] = 'nan'
+        empty[name] = []
+
+
 CHUNK_ROWS = 1 << 17
 """CSV rows parsed at a time: reading holds one such block beyond the result."""
 
 
-def _parse_chunks(f, columns, chunk_rows=CHUNK_ROWS):
+def _parse_chunks(f, columns, chunk_rows=CHUNK_ROWS, empty_ok=()):
     """Yield blocks (rows, len(columns)) of the CSV data lines of ``f``, parsed by numpy."""
     while True:
         lines = list(itertools.islice(f, chunk_rows))
         if not lines:
             return
-        block = _parse_fast(lines, columns)
+        block = _parse_fast(lines, columns, empty_ok)
         if block.size:
             yield block, sum(map(len, lines))
 
 
-def _parse_all(f, columns, size_bytes, on_read=None):
+def _parse_all(f, columns, size_bytes, on_read=None, empty_ok=()):
     """
     Parse every data line of ``f`` into one (N, len(columns)) array, block by block.
 
@@ -237,7 +292,7 @@ def _parse_all(f, columns, size_bytes, on_read=None):
     result plus one block, not the several copies a whole-file parse makes.
     """
     data, n = None, 0
-    for block, nbytes in _parse_chunks(f, columns):
+    for block, nbytes in _parse_chunks(f, columns, empty_ok=empty_ok):
         if on_read is not None:
             on_read(nbytes)
         if data is None:
@@ -275,7 +330,7 @@ def load_csv(path, on_read=None):
             used = list(layout)
             try:
                 data = _parse_all(f, [layout[n] for n in used], os.fstat(f.fileno()).st_size,
-                                  on_read)
+                                  on_read, _mag_positions(layout))
                 # Views into the one array: no copies of a big file.
                 columns = _columns(data, used) if data.size else {}
                 lines = None
@@ -298,7 +353,8 @@ def iter_csv(path, chunk_rows, on_read=None):
             used = list(layout)
             offset, t_before, columns = 0, None, {}    # {}: no block at all (header only)
             try:
-                for block, nbytes in _parse_chunks(f, [layout[n] for n in used], chunk_rows):
+                for block, nbytes in _parse_chunks(f, [layout[n] for n in used], chunk_rows,
+                                                   _mag_positions(layout)):
                     if on_read is not None:
                         on_read(nbytes)
                     columns = _columns(block, used)
@@ -355,14 +411,26 @@ def _checked_samples(path, columns, lines, header_lineno, row_offset=0, t_before
         gyro = columns.get('gyro')
         if gyro is None:
             gyro = np.column_stack([columns[n] for n in GYRO_COLUMNS])
+    mag = _mag_column(columns)
     checks = [('time t', t), ('acceleration ax, ay, az', accel)]
     if temp is not None:
         checks.append(('temperature', temp))
     if gyro is not None:
         checks.append(('gyro gx, gy, gz', gyro))
+    if mag is not None:
+        checks.append(('magnetic field mx, my, mz', mag))
+        gaps = np.isnan(mag)
+        partial = np.nonzero(gaps.any(axis=1) & ~gaps.all(axis=1))[0]
+        if partial.size:
+            where = listed(line_numbers(partial[:MAX_LISTED])
+                           + ['x'] * (partial.size - MAX_LISTED))
+            raise InputError(f'{path}: magnetometer cells partly empty on line(s) {where}; a '
+                             'row without a magnetometer sample leaves all of mx, my, mz empty')
     for what, values in checks:
         with np.errstate(invalid='ignore'):
             finite = np.isfinite(values) & (np.abs(values) <= PLAUSIBLE_LIMIT[what])
+        if values is mag:           # a row without a magnetometer sample is all NaN
+            finite |= np.all(np.isnan(values), axis=1)[:, None]
         bad = np.nonzero(~(finite if finite.ndim == 1 else finite.all(axis=1)))[0]
         if bad.size:
             where = listed(line_numbers(bad[:MAX_LISTED]) + ['x'] * (bad.size - MAX_LISTED))
@@ -376,7 +444,15 @@ def _checked_samples(path, columns, lines, header_lineno, row_offset=0, t_before
         raise InputError(
             f'{path}, line {line}: time goes backwards (t={t[i]:.9g} s after {t[i - 1]:.9g} s; '
             f'{back.size} such step(s)); rows must be in increasing time order')
-    return Samples(t, accel, temp, gyro)
+    return Samples(t, accel, temp, gyro, mag)
+
+
+def _mag_column(columns):
+    """Return the (N, 3) magnetometer columns (a view when side by side), or None."""
+    if not all(n in columns for n in MAG_COLUMNS):
+        return None
+    mag = columns.get('mag')
+    return np.column_stack([columns[n] for n in MAG_COLUMNS]) if mag is None else mag
 
 
 def _check_extra(extra, n):
@@ -397,13 +473,15 @@ def _check_extra(extra, n):
     return out
 
 
-def _csv_names(has_temp, has_gyro, extra_names=()):
-    """Return the CSV header names for samples with/without temp and gyro, plus extras."""
+def _csv_names(has_temp, has_gyro, extra_names=(), has_mag=False):
+    """Return the CSV header names for samples with/without temp, gyro, mag, plus extras."""
     names = list(REQUIRED_COLUMNS)
     if has_temp:
         names.append('temp')
     if has_gyro:
         names.extend(GYRO_COLUMNS)
+    if has_mag:
+        names.extend(MAG_COLUMNS)
     return names + list(extra_names)
 
 
@@ -420,11 +498,27 @@ def _csv_block(samples, extra_values, width):
     if samples.gyro is not None:
         data[:, col:col + 3] = samples.gyro
         col += 3
+    mag_col = col
+    if samples.mag is not None:
+        data[:, col:col + 3] = samples.mag
+        col += 3
     for values in extra_values:
         data[:, col] = values
         col += 1
     row = '%.9f' + ',%.9g' * (width - 1) + '\n'
-    return (row * n) % tuple(data.ravel().tolist())  # one C-level pass: faster than savetxt
+    if samples.mag is None or samples.mag_rows.all():
+        return (row * n) % tuple(data.ravel().tolist())  # one C-level pass: faster than savetxt
+    return _csv_block_mag_gaps(data, samples.mag_rows, mag_col, width)
+
+
+def _csv_block_mag_gaps(data, mag_rows, mag_col, width):
+    """Format rows whose magnetometer cells are empty where ``mag_rows`` (N,) is False."""
+    full = '%.9f' + ',%.9g' * (width - 1) + '\n'
+    gap = '%.9f' + ',%.9g' * (mag_col - 1) + ',,,' + ',%.9g' * (width - mag_col - 3) + '\n'
+    keep = np.ones(data.shape, bool)
+    keep[~mag_rows, mag_col:mag_col + 3] = False
+    formats = np.where(mag_rows, full, gap)
+    return ''.join(formats.tolist()) % tuple(data[keep].tolist())
 
 
 class CsvWriter:
@@ -438,12 +532,13 @@ class CsvWriter:
     BLOCK_ROWS = 1 << 15
     """Rows formatted at a time (the formatting holds Python floats for a block)."""
 
-    def __init__(self, f, has_temp, has_gyro, extra_names):
+    def __init__(self, f, has_temp, has_gyro, extra_names, has_mag=False):
         self._f = f
         self.has_temp = has_temp
         self.has_gyro = has_gyro
+        self.has_mag = has_mag
         self.extra_names = list(extra_names)
-        self.names = _csv_names(has_temp, has_gyro, self.extra_names)
+        self.names = _csv_names(has_temp, has_gyro, self.extra_names, has_mag)
         self.rows = 0
         f.write(','.join(self.names) + '\n')
 
@@ -451,13 +546,15 @@ class CsvWriter:
         """
         Append samples (and their extra columns) to the file.
 
-        :param samples: Samples with temp/gyro present exactly when the header has them.
+        :param samples: Samples with temp/gyro/mag present exactly when the header has them.
         :param extra: dict name -> (N,) array, the same names as given to ``csv_writer``.
         :raises InputError: the samples or extra columns do not fit the header.
         """
         if (samples.temp is not None) != self.has_temp or \
                 (samples.gyro is not None) != self.has_gyro:
             raise InputError('samples written to one CSV must all have (or lack) temp and gyro')
+        if (samples.mag is not None) != self.has_mag:
+            raise InputError('samples written to one CSV must all have (or lack) mx my mz')
         checked = _check_extra(extra, len(samples))
         if [name for name, _ in checked] != self.extra_names:
             raise InputError(f'extra columns {[n for n, _ in checked]} differ from those '
@@ -470,7 +567,7 @@ class CsvWriter:
 
 
 @contextlib.contextmanager
-def csv_writer(path, has_temp=False, has_gyro=False, extra_names=()):
+def csv_writer(path, has_temp=False, has_gyro=False, extra_names=(), has_mag=False):
     """
     Open the spec CSV ``path`` for writing in pieces, atomically.
 
@@ -482,6 +579,7 @@ def csv_writer(path, has_temp=False, has_gyro=False, extra_names=()):
     :param has_temp: the file has a ``temp`` column.
     :param has_gyro: the file has ``gx, gy, gz`` columns.
     :param extra_names: names of extra columns after the standard ones.
+    :param has_mag: the file has ``mx, my, mz`` columns (empty cells for NaN rows).
     :return: context manager yielding a ``CsvWriter``.
     :raises InputError: the file cannot be written.
     """
@@ -489,7 +587,7 @@ def csv_writer(path, has_temp=False, has_gyro=False, extra_names=()):
     try:
         with atomic_path(path) as tmp:
             with open(tmp, 'w', encoding='utf-8', newline='') as f:
-                yield CsvWriter(f, has_temp, has_gyro, extra_names)
+                yield CsvWriter(f, has_temp, has_gyro, extra_names, has_mag)
     except OSError as exc:
         raise InputError(f'{path}: cannot write ({exc.strerror or one_line(exc)})') from None
 
@@ -498,8 +596,9 @@ def write_samples_csv(path, samples, extra=None):
     """
     Write samples as the spec CSV, atomically.
 
-    Columns: ``t, ax, ay, az``, then ``temp`` and ``gx, gy, gz`` when present, then the
-    ``extra`` columns in the dict's order. Times are written with nanosecond resolution
+    Columns: ``t, ax, ay, az``, then ``temp``, ``gx, gy, gz`` and ``mx, my, mz`` when
+    present (empty magnetometer cells in rows without a sample), then the ``extra``
+    columns in the dict's order. Times are written with nanosecond resolution
     (``%.9f``, so absolute ROS times keep their fraction), other values with ``%.9g``.
 
     :param path: the CSV file to create or replace.
@@ -522,7 +621,7 @@ def write_samples_csv(path, samples, extra=None):
         if first is None:
             first = Samples(np.zeros(0), np.zeros((0, 3)))
     with csv_writer(path, first.temp is not None, first.gyro is not None,
-                    [name for name, _ in checked]) as writer:
+                    [name for name, _ in checked], first.mag is not None) as writer:
         writer.write(first, dict(checked) if checked else None)
         for piece in pieces:
             writer.write(piece)

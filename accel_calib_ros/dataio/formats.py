@@ -11,6 +11,9 @@ IMU_TYPE = 'sensor_msgs/msg/Imu'
 TEMP_TYPE = 'sensor_msgs/msg/Temperature'
 
 
+MAG_TYPE = 'sensor_msgs/msg/MagneticField'
+
+
 ACCEPTED = ('a .csv file, a rosbag2 .mcap or .db3 file, '
             'or a rosbag2 bag directory (holding metadata.yaml)')
 
@@ -21,7 +24,11 @@ REQUIRED_COLUMNS = ('t', 'ax', 'ay', 'az')
 GYRO_COLUMNS = ('gx', 'gy', 'gz')
 
 
-STANDARD_COLUMNS = REQUIRED_COLUMNS + ('temp',) + GYRO_COLUMNS
+MAG_COLUMNS = ('mx', 'my', 'mz')
+"""Magnetic field, µT in the accelerometer frame; all three empty in a row without a sample."""
+
+
+STANDARD_COLUMNS = REQUIRED_COLUMNS + ('temp',) + GYRO_COLUMNS + MAG_COLUMNS
 
 
 BAG_SUFFIXES = ('.mcap', '.db3')

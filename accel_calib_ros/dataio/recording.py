@@ -5,12 +5,14 @@ Read and write recordings: the spec CSV and rosbag2 (MCAP or SQLite 3) bags, as 
 commands) accept
 
 * a ``.csv`` file (interface spec section 2): a header row; required columns ``t``,
-  ``ax``, ``ay``, ``az``; optional ``temp`` and ``gx``, ``gy``, ``gz``; other columns are
-  ignored; names are matched case-insensitively after stripping spaces (``csv_io``);
-* a rosbag2 recording of ``sensor_msgs/msg/Imu`` (plus ``sensor_msgs/msg/Temperature`` if
-  recorded), given as the bag directory (the one holding ``metadata.yaml``, what
-  ``ros2 bag record -o NAME`` creates), as a ``.mcap`` / ``.db3`` storage file inside such
-  a directory, or as a bare storage file without ``metadata.yaml`` (``rosbag_io``).
+  ``ax``, ``ay``, ``az``; optional ``temp``, ``gx``, ``gy``, ``gz`` and ``mx``, ``my``,
+  ``mz`` (µT, empty in rows without a magnetometer sample); other columns are ignored;
+  names are matched case-insensitively after stripping spaces (``csv_io``);
+* a rosbag2 recording of ``sensor_msgs/msg/Imu`` (plus ``sensor_msgs/msg/Temperature`` and
+  ``sensor_msgs/msg/MagneticField`` if recorded), given as the bag directory (the one
+  holding ``metadata.yaml``, what ``ros2 bag record -o NAME`` creates), as a ``.mcap`` /
+  ``.db3`` storage file inside such a directory, or as a bare storage file without
+  ``metadata.yaml`` (``rosbag_io``).
 
 Writers: ``csv_io.write_samples_csv`` / ``csv_io.csv_writer`` and ``rosbag_io.write_bag``.
 Every malformed input raises ``InputError`` with a one-line message that says what is
@@ -27,7 +29,7 @@ from ..core.errors import InputError
 __all__ = ['csv_writer', 'iter_samples', 'load_samples', 'write_bag', 'write_samples_csv']
 
 
-def load_samples(path, imu_topic=None, temp_topic=None, on_read=None):
+def load_samples(path, imu_topic=None, temp_topic=None, on_read=None, mag_topic=None):
     """
     Load a recording as validated ``Samples``.
 
@@ -36,7 +38,9 @@ def load_samples(path, imu_topic=None, temp_topic=None, on_read=None):
     :param temp_topic: bags only: the ``sensor_msgs/msg/Temperature`` topic (needed if
         several and none shares the Imu topic's namespace).
     :param on_read: CSV only: called with the characters read after each block (progress).
-    :return: Samples with t, accel and, when recorded, temp and gyro.
+    :param mag_topic: bags only: the ``sensor_msgs/msg/MagneticField`` topic (default: the
+        only one, or the one beside the Imu topic).
+    :return: Samples with t, accel and, when recorded, temp, gyro and mag.
     :raises InputError: the path is missing, of an unknown kind or malformed.
     """
     p = Path(path)
@@ -46,11 +50,11 @@ def load_samples(path, imu_topic=None, temp_topic=None, on_read=None):
         raise InputError(f'{p}: no such file or directory')
     suffix = p.suffix.lower()
     if p.is_dir():
-        samples = load_bag(p, imu_topic, temp_topic)
+        samples = load_bag(p, imu_topic, temp_topic, mag_topic)
     elif suffix == '.csv':
         samples = load_csv(p, on_read)
     elif suffix in BAG_SUFFIXES:
-        samples = load_bag(p, imu_topic, temp_topic)
+        samples = load_bag(p, imu_topic, temp_topic, mag_topic)
     else:
         raise InputError(f'{p}: unsupported data file {suffix or "(no suffix)"}; '
                          f'expected {ACCEPTED}')
@@ -60,7 +64,8 @@ def load_samples(path, imu_topic=None, temp_topic=None, on_read=None):
         raise InputError(f'{p}: {exc}') from None
 
 
-def iter_samples(path, chunk_rows=CHUNK_ROWS, imu_topic=None, temp_topic=None, on_read=None):
+def iter_samples(path, chunk_rows=CHUNK_ROWS, imu_topic=None, temp_topic=None, on_read=None,
+                 mag_topic=None):
     """
     Load a recording piece by piece: a generator of validated ``Samples``.
 
@@ -74,6 +79,7 @@ def iter_samples(path, chunk_rows=CHUNK_ROWS, imu_topic=None, temp_topic=None, o
     :param imu_topic: bags only, as for ``load_samples``.
     :param temp_topic: bags only, as for ``load_samples``.
     :param on_read: CSV only: called with the characters read for each piece (progress).
+    :param mag_topic: bags only, as for ``load_samples``.
     :return: generator of Samples, in time order.
     :raises InputError: as ``load_samples``.
     """
@@ -85,6 +91,6 @@ def iter_samples(path, chunk_rows=CHUNK_ROWS, imu_topic=None, temp_topic=None, o
             except InputError as exc:
                 raise InputError(f'{p}: {exc}') from None
         return
-    whole = load_samples(path, imu_topic=imu_topic, temp_topic=temp_topic)
+    whole = load_samples(path, imu_topic=imu_topic, temp_topic=temp_topic, mag_topic=mag_topic)
     for a in range(0, len(whole), chunk_rows):
         yield whole.subset(slice(a, a + chunk_rows))

@@ -1,12 +1,16 @@
 """
-rosbag2 recordings (MCAP or SQLite 3) of ``sensor_msgs/Imu`` and ``sensor_msgs/Temperature``.
+rosbag2 recordings (MCAP or SQLite 3) of Imu, Temperature and MagneticField messages.
 
 Bag conventions. ``t`` is the Imu ``header.stamp``; when every stamp of a topic is zero
 (a driver that never sets it) the bag's receive time is used instead. Temperature is
 interpolated in time onto every Imu sample and held constant before the first and after
 the last temperature message; it is interpolated on the receive-time axis when the
 temperature stamps are all zero. The gyro is ``angular_velocity`` unless every message
-marks it unknown (REP-145: ``angular_velocity_covariance[0] == -1``).
+marks it unknown (REP-145: ``angular_velocity_covariance[0] == -1``). The magnetic field
+(tesla, the accelerometer's frame as the driver publishes it) becomes ``mx my mz`` in µT:
+each MagneticField message goes to the Imu sample nearest in time when one lies within
+half the Imu sample period (the nearest message wins when several do); the other rows
+are NaN (the magnetometer runs slower than the accelerometer).
 
 Bag path convention of ``write_bag`` (what a ROS user expects from the name given):
 
@@ -28,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from .atomic import fsync_directory, replace_into
-from .formats import ACCEPTED, BAG_SUFFIXES, IMU_TYPE, listed, one_line, TEMP_TYPE
+from .formats import ACCEPTED, BAG_SUFFIXES, IMU_TYPE, listed, MAG_TYPE, one_line, TEMP_TYPE
 from ..core.errors import InputError
 from ..core.samples import Samples
 
@@ -129,13 +133,21 @@ def _namespace(topic):
 # Imu and Temperature end in a fixed block of float64 after the variable-length frame_id:
 # Imu: orientation (4), its covariance (9), angular_velocity (3), covariance (9),
 # linear_acceleration (3), covariance (9); Temperature: temperature, variance.
-_TAIL_DOUBLES = {IMU_TYPE: 37, TEMP_TYPE: 2}
+# MagneticField: magnetic_field (3), its covariance (9).
+_TAIL_DOUBLES = {IMU_TYPE: 37, TEMP_TYPE: 2, MAG_TYPE: 12}
 
 
 _IMU_COLUMNS = [25, 26, 27, 13, 14, 15, 16]  # accel xyz, gyro xyz, gyro covariance[0]
 
 
 _TEMP_COLUMNS = [0]
+
+
+_MAG_COLUMNS = [0, 1, 2]
+
+
+TESLA_TO_UT = 1e6
+"""sensor_msgs/MagneticField is in tesla; the recordings' mx my mz are in µT."""
 
 
 _CDR_LE = b'\x00\x01'
@@ -179,6 +191,9 @@ def _decode_slow(raws, msgtype):
             rows.append([q.x, q.y, q.z, q.w, *msg.orientation_covariance,
                          w.x, w.y, w.z, *msg.angular_velocity_covariance,
                          a.x, a.y, a.z, *msg.linear_acceleration_covariance])
+        elif msgtype == MAG_TYPE:
+            m = msg.magnetic_field
+            rows.append([m.x, m.y, m.z, *msg.magnetic_field_covariance])
         else:
             rows.append([msg.temperature, msg.variance])
     return (np.asarray(stamps, dtype=np.int64),
@@ -210,8 +225,50 @@ def _time_axis(received, stamps):
     return (stamps if use_stamps else received), use_stamps
 
 
-def load_bag(path, imu_topic, temp_topic):
-    """Read Imu (and Temperature) messages from a rosbag2 recording into Samples."""
+def _pick_near(types, msgtype, wanted, imu, path, option):
+    """Pick a topic like ``_pick_topic``; several without a choice: the one beside ``imu``."""
+    if wanted is None:
+        topics = sorted(t for t, ts in types.items() if msgtype in ts)
+        near = [t for t in topics if _namespace(t) == _namespace(imu)]
+        if len(topics) > 1 and len(near) == 1:
+            wanted = near[0]
+    return _pick_topic(types, msgtype, wanted, path, option)
+
+
+def _match_mag(reader, topic, imu_time, received, explicit, path):
+    """
+    Return the field (N, 3) µT at each Imu sample: the nearest message within half a period.
+
+    :param imu_time: (N,) the Imu samples' time axis, ns (stamps, or receive times when the
+        stamps were never set); ``received`` their receive times, ns.
+    :param explicit: the topic was asked for (an empty one is then an error).
+    """
+    m_received, m_stamps, values = _read_topic(reader, topic, MAG_TYPE, _MAG_COLUMNS)
+    if not len(values):
+        if explicit:
+            raise InputError(f'{path}: topic {topic} holds no messages')
+        return None
+    x, use_stamps = _time_axis(m_received, m_stamps)
+    at = (imu_time if use_stamps else received).astype(np.int64)
+    mag = np.full((len(at), 3), np.nan)
+    if len(at) > 1:
+        half = 0.5 * float(np.median(np.diff(at)))
+    else:
+        half = float('inf')
+    i = np.clip(np.searchsorted(at, x), 1, max(len(at) - 1, 1))
+    if len(at) > 1:
+        i = np.where(np.abs(x - at[i - 1]) <= np.abs(at[i] - x), i - 1, i)
+    else:
+        i = np.zeros(len(x), np.int64)
+    distance = np.abs((x - at[i]).astype(float))
+    ok = (distance <= half) & np.all(np.isfinite(values), axis=1)
+    order = np.argsort(-distance[ok], kind='stable')    # the nearest is written last
+    mag[i[ok][order]] = values[ok][order] * TESLA_TO_UT
+    return mag
+
+
+def load_bag(path, imu_topic, temp_topic, mag_topic=None):
+    """Read Imu (and Temperature, MagneticField) messages from a rosbag2 recording."""
     source = _bag_source(path)
     rosbag2 = _rosbags()[0]
     try:
@@ -257,13 +314,17 @@ def load_bag(path, imu_topic, temp_topic):
                 order = np.argsort(x, kind='stable')
                 temperature = np.interp(at.astype(float), x[order].astype(float),
                                         values[order, 0])
+        mag_name = _pick_near(types, MAG_TYPE, mag_topic, imu, path, '--mag-topic')
+        mag = None
+        if mag_name is not None:
+            mag = _match_mag(reader, mag_name, imu_time, received, mag_topic is not None, path)
     except InputError:
         raise
     except Exception as exc:  # corrupt chunks or messages surface as assorted errors
         raise InputError(f'{path}: cannot read the bag ({one_line(exc)})') from None
     finally:
         reader.close()
-    return Samples(t, accel, temperature, gyro)
+    return Samples(t, accel, temperature, gyro, mag)
 
 
 def _storage_for(path, storage):
@@ -286,7 +347,7 @@ def _serialized_batch(msgtype, frame_id, ns, doubles):
     Only the numeric fields at the fixed offsets of ``_decode_fast`` are overwritten, so
     the byte layout (encapsulation header, frame_id string, padding) is rosbags' own.
 
-    :param msgtype: IMU_TYPE or TEMP_TYPE.
+    :param msgtype: IMU_TYPE, TEMP_TYPE or MAG_TYPE.
     :param frame_id: header.frame_id of every message.
     :param ns: (N,) stamps, integer nanoseconds.
     :param doubles: (N, _TAIL_DOUBLES[msgtype]) values of the float64 tail.
@@ -303,6 +364,11 @@ def _serialized_batch(msgtype, frame_id, ns, doubles):
             orientation_covariance=np.zeros(9), angular_velocity=vector,
             angular_velocity_covariance=np.zeros(9), linear_acceleration=vector,
             linear_acceleration_covariance=np.zeros(9))
+    elif msgtype == MAG_TYPE:
+        template = ts.types[MAG_TYPE](
+            header=header,
+            magnetic_field=ts.types['geometry_msgs/msg/Vector3'](x=0.0, y=0.0, z=0.0),
+            magnetic_field_covariance=np.zeros(9))
     else:
         template = ts.types[TEMP_TYPE](header=header, temperature=0.0, variance=0.0)
     raw = np.frombuffer(bytes(ts.serialize_cdr(template, msgtype)), dtype=np.uint8)
@@ -315,6 +381,20 @@ def _serialized_batch(msgtype, frame_id, ns, doubles):
     buf[:, start:] = np.ascontiguousarray(doubles, dtype='<f8').view(np.uint8).reshape(
         len(ns), -1)
     return buf
+
+
+def _mag_batch(samples, frame_id, ns):
+    """
+    Serialize the rows holding a magnetometer sample as MagneticField messages (tesla).
+
+    :returns: (row indices, messages) or None without a magnetometer.
+    """
+    if samples.mag is None:
+        return None
+    rows = np.flatnonzero(samples.mag_rows)
+    doubles = np.zeros((len(rows), _TAIL_DOUBLES[MAG_TYPE]))   # covariance 0: unknown
+    doubles[:, :3] = samples.mag[rows] / TESLA_TO_UT
+    return rows, _serialized_batch(MAG_TYPE, frame_id, ns[rows], doubles)
 
 
 def _bag_batches(samples, frame_id):
@@ -337,7 +417,8 @@ def _bag_batches(samples, frame_id):
     return ns, imu_raw, temp_raw
 
 
-def _write_bag_dir(bagdir, pieces, imu_topic, temp_topic, frame_id, storage):
+def _write_bag_dir(bagdir, pieces, imu_topic, temp_topic, frame_id, storage,
+                   mag_topic='/imu/mag'):
     """Write the rosbag2 directory ``bagdir`` (must not exist) from Samples pieces."""
     ts = _types()
     rosbag2 = _rosbags()[0]
@@ -345,17 +426,23 @@ def _write_bag_dir(bagdir, pieces, imu_topic, temp_topic, frame_id, storage):
     plugin = plugins.SQLITE3 if storage == 'sqlite3' else plugins.MCAP
     with rosbag2.Writer(bagdir, version=rosbag2.Writer.VERSION_LATEST,
                         storage_plugin=plugin) as writer:
-        imu_conn = temp_conn = None
+        imu_conn = temp_conn = mag_conn = None
         for samples in pieces:
             ns, imu_raw, temp_raw = _bag_batches(samples, frame_id)
+            mag = _mag_batch(samples, frame_id, ns)
             if imu_conn is None:
                 imu_conn = writer.add_connection(imu_topic, IMU_TYPE, typestore=ts)
                 if temp_raw is not None:
                     temp_conn = writer.add_connection(temp_topic, TEMP_TYPE, typestore=ts)
+                if mag is not None:
+                    mag_conn = writer.add_connection(mag_topic, MAG_TYPE, typestore=ts)
+            mag_at = {} if mag is None else dict(zip(mag[0].tolist(), range(len(mag[0]))))
             for i, stamp in enumerate(ns.tolist()):
                 writer.write(imu_conn, stamp, imu_raw[i].tobytes())
                 if temp_conn is not None:
                     writer.write(temp_conn, stamp, temp_raw[i].tobytes())
+                if i in mag_at:
+                    writer.write(mag_conn, stamp, mag[1][mag_at[i]].tobytes())
 
 
 def _checked_pieces(first, rest):
@@ -367,6 +454,8 @@ def _checked_pieces(first, rest):
         if (piece.temp is None) != (first.temp is None) or \
                 (piece.gyro is None) != (first.gyro is None):
             raise InputError('samples written to one bag must all have (or lack) temp and gyro')
+        if (piece.mag is None) != (first.mag is None):
+            raise InputError('samples written to one bag must all have (or lack) mx my mz')
         if piece.t[0] < t_last:
             raise InputError('bag samples must be in increasing time order')
         t_last = piece.t[-1]
@@ -386,7 +475,7 @@ def _fsync_tree(directory):
 
 
 def write_bag(path, samples, imu_topic='/imu/data_raw', temp_topic='/imu/temperature',
-              frame_id='imu_link', storage=None):
+              frame_id='imu_link', storage=None, mag_topic='/imu/mag'):
     """
     Write samples as a rosbag2 recording of Imu (and Temperature) messages.
 
@@ -395,7 +484,9 @@ def write_bag(path, samples, imu_topic='/imu/data_raw', temp_topic='/imu/tempera
     ``metadata.yaml``, as ``ros2 bag record -o path`` would (see the module docstring).
     Header stamps and receive times are both ``t``; orientation is marked unknown and, when
     the samples have no gyro, so is the angular velocity (REP-145). The temperature, when
-    present, is published on ``temp_topic`` with the same stamp as each Imu message.
+    present, is published on ``temp_topic`` with the same stamp as each Imu message; the
+    magnetic field, when present, as sensor_msgs/MagneticField (tesla, covariance
+    unknown) on ``mag_topic`` with the stamp of its row, for the rows holding a sample.
 
     :param path: output file (``.mcap``/``.db3``) or bag directory.
     :param samples: the Samples to write (t in seconds, t >= 0), or an iterable of Samples
@@ -404,6 +495,7 @@ def write_bag(path, samples, imu_topic='/imu/data_raw', temp_topic='/imu/tempera
     :param temp_topic: topic of the ``sensor_msgs/msg/Temperature`` messages.
     :param frame_id: ``header.frame_id`` of every message.
     :param storage: 'mcap' or 'sqlite3'; default from the suffix (.db3 -> sqlite3, else mcap).
+    :param mag_topic: topic of the ``sensor_msgs/msg/MagneticField`` messages.
     :return: the Path written (the file or the bag directory).
     :raises InputError: bad samples or arguments, an existing bag directory, or the
         location cannot be written.
@@ -424,6 +516,9 @@ def write_bag(path, samples, imu_topic='/imu/data_raw', temp_topic='/imu/tempera
     temp_topic = _normalize_topic(temp_topic)
     if samples.temp is not None and temp_topic == imu_topic:
         raise InputError(f'the Imu and Temperature topics must differ (both {imu_topic})')
+    mag_topic = _normalize_topic(mag_topic)
+    if samples.mag is not None and mag_topic in (imu_topic, temp_topic):
+        raise InputError(f'the MagneticField topic must differ from the others ({mag_topic})')
     single_file = target.suffix.lower() in BAG_SUFFIXES
     if not single_file and os.path.lexists(target):
         raise InputError(f'{target} exists already; a rosbag2 directory is never overwritten, '
@@ -440,7 +535,7 @@ def write_bag(path, samples, imu_topic='/imu/data_raw', temp_topic='/imu/tempera
     try:
         bagdir = scratch / name
         _write_bag_dir(bagdir, _checked_pieces(samples, rest), imu_topic, temp_topic,
-                       frame_id, storage)
+                       frame_id, storage, mag_topic)
         _fsync_tree(bagdir)
         if single_file:
             replace_into(bagdir / f'{name}{_STORAGE_SUFFIX[storage]}', str(target))

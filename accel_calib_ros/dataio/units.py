@@ -70,13 +70,14 @@ def to_si(samples, units='m/s2', counts_per_g=None, counts_offset=0.0):
     Return ``samples`` with the acceleration in m/s² (the same object when already SI).
 
     :param samples: Samples as read (accel in ``units``).
-    :return: Samples with accel in m/s² (t, temp and gyro unchanged).
+    :return: Samples with accel in m/s² (t, temp, gyro and mag unchanged).
     :raises InputError: as :func:`scale_and_offset`.
     """
     factor, offset = scale_and_offset(units, counts_per_g, counts_offset)
     if factor == 1.0 and offset == 0.0:
         return samples
-    return Samples(samples.t, (samples.accel - offset) * factor, samples.temp, samples.gyro)
+    return Samples(samples.t, (samples.accel - offset) * factor, samples.temp, samples.gyro,
+                   samples.mag)
 
 
 def median_magnitude(accel):

@@ -18,6 +18,14 @@ A thin shell around :mod:`accel_calib_ros.core`:
   of the windows; otherwise it refuses with the reason and the file stays byte-for-byte
   as it was. The model-gap check runs after the response and is published on
   ``~/status``. ``~/reset`` forgets the collected windows.
+- the whole IMU (spec §9, §10): the raw samples (bounded ring, ``max_gyro_samples``)
+  and ``imu/mag`` (sensor_msgs/MagneticField, tesla; decimated, ``max_mag_samples``)
+  are kept (:class:`core.imu_stream.ImuCollector`); once the accelerometer calibration
+  is accepted, ``~/calibrate`` also fits the gyroscope's scale and misalignment from
+  the moves between the windows and the magnetometer, and stores each part that
+  passes its own limit (``max_gyro_error``, ``max_mag_error``). A sensor whose data
+  are absent or insufficient is reported as such (response, ``~/status``), never as a
+  failure of the accelerometer calibration.
 """
 
 from collections import deque
@@ -30,7 +38,7 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data, QoSProfile,
                        ReliabilityPolicy)
-from sensor_msgs.msg import Imu, Temperature
+from sensor_msgs.msg import Imu, MagneticField, Temperature
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
@@ -41,6 +49,8 @@ from ..core.accel.thermal import MIN_WINDOWS_PER_BAND
 from ..core.acceptance import review
 from ..core.advice import advise, coverage
 from ..core.errors import CalibrationError, InputError
+from ..core.imu import DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR
+from ..core.imu_stream import DEFAULT_MAX_MAG_SAMPLES, DEFAULT_MAX_SAMPLES, ImuCollector
 from ..core.windows import DEFAULTS, OnlineStaticDetector, StaticWindows
 from ..dataio.calibration_file import save_calibration
 
@@ -154,6 +164,24 @@ PARAMS = [
           'record each saved calibration and its windows in the history database'),
     Param('history_file', '',
           "history database ('' = history.sqlite next to calibration_file)"),
+    Param('max_gyro_samples', DEFAULT_MAX_SAMPLES,
+          'raw samples kept for the gyroscope scale/misalignment fit (36 bytes each; the '
+          'moves between the windows still kept are used; 0 = no gyro T)', low=0,
+          high=10_000_000, read_only=True),
+    Param('max_mag_samples', DEFAULT_MAX_MAG_SAMPLES,
+          'imu/mag samples kept for the magnetometer fit (decimated by 2 whenever full; '
+          '0 = no magnetometer calibration)', low=0, high=1_000_000, read_only=True),
+    Param('max_gyro_error', DEFAULT_MAX_GYRO_ERROR,
+          'store the gyro scale/misalignment only when its predicted accuracy (RMS '
+          'relative rate error over all directions) is at most this', low=0.0,
+          low_open=True, high=1.0),
+    Param('max_mag_error', DEFAULT_MAX_MAG_ERROR,
+          'store the magnetometer calibration only when its predicted accuracy (RMS field '
+          'error over all directions) is at most this, uT', low=0.0, low_open=True,
+          high=1000.0),
+    Param('field_uT', 0.0,
+          'known local magnetic field magnitude, uT (0 = fitted, trusting the '
+          'magnetometer sensitivity on average)', low=0.0, high=1000.0),
 ]
 
 
@@ -179,6 +207,10 @@ class CalibrationNode(Node):
         self._advice = None
         self._model_gap = None
         self._gap_timer = None
+        self.imu = ImuCollector(self.params['max_gyro_samples'],
+                                self.params['max_mag_samples'])
+        self._imu_result = None     # (gyro, magnetometer) SensorOutcome of ~/calibrate
+        self._coverage = None       # fraction of the sphere of field directions seen
 
         self.status_pub = self.create_publisher(String, '~/status', LATCHED)
         self.advice_pub = self.create_publisher(String, '~/advice', LATCHED)
@@ -190,6 +222,7 @@ class CalibrationNode(Node):
                              durability=qos_profile_sensor_data.durability)
         self.create_subscription(Imu, 'imu/data_raw', self.on_imu, sub_qos)
         self.create_subscription(Temperature, 'imu/temperature', self.on_temperature, sub_qos)
+        self.create_subscription(MagneticField, 'imu/mag', self.on_mag, sub_qos)
         self.create_service(Trigger, '~/calibrate', self.on_calibrate)
         self.create_service(Trigger, '~/reset', self.on_reset)
         self.create_timer(0.1, self.process_pending)
@@ -265,12 +298,25 @@ class CalibrationNode(Node):
         if len(self._pending) >= CHUNK:
             self.process_pending()
 
+    def on_mag(self, msg):
+        """
+        Offer one magnetometer sample to the collector (tesla -> µT).
+
+        :param msg: sensor_msgs/MagneticField in the accelerometer frame.
+        """
+        f = msg.magnetic_field
+        t = stamp_seconds(msg.header.stamp)
+        if t <= 0.0:                                            # unstamped: receive time
+            t = self.get_clock().now().nanoseconds * 1e-9
+        self.imu.add_mag(t, (f.x * 1e6, f.y * 1e6, f.z * 1e6))
+
     def process_pending(self):
         """Hand the buffered samples to the detector; keep and announce new windows."""
         if not self._pending:
             return
         rows = np.array(self._pending, float)
         self._pending = []
+        self.imu.add_samples(rows)
         gyro = rows[:, 4:7]
         windows = self.detector.feed(rows[:, 0], rows[:, 1:4], rows[:, 7],
                                      gyro if np.all(np.isfinite(gyro)) else None)
@@ -323,7 +369,7 @@ class CalibrationNode(Node):
              'predicted_accuracy': None, 'target_accuracy': self.params['target_accuracy'],
              'enough': False, 'next_pose': None, 'last_window': None,
              'temperature_c': None, 'last_calibration': self._last_result,
-             'model_gap': self._model_gap}
+             'model_gap': self._model_gap, 'imu': self.imu.state(self._coverage)}
         if self._advice is not None:
             a = self._advice
             d['predicted_accuracy'] = a['predicted_accuracy']
@@ -355,6 +401,7 @@ class CalibrationNode(Node):
         obj = None
         if advice:
             obj, self._advice = self.compute_advice()
+            self._coverage = self.imu.coverage() if len(self.imu.mag) >= 10 else None
             if self._advice is not None:
                 self.advice_pub.publish(String(data=safe_json(self._advice)))
         d = self.progress(obj)
@@ -394,6 +441,11 @@ class CalibrationNode(Node):
                   'target_accuracy_m_s2': self.params['target_accuracy'],
                   'calibration_file': self.path,
                   'last_calibration': (self._last_result or {}).get('message', 'none')}
+        imu = self.imu.state(self._coverage)
+        values.update({'gyro_received': imu['gyro_received'],
+                       'raw_samples_kept': imu['raw_samples'],
+                       'mag_received': imu['mag_received'], 'mag_samples_kept': imu['mag_samples'],
+                       'mag_coverage': imu['mag_coverage']})
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()
@@ -411,6 +463,7 @@ class CalibrationNode(Node):
         n = len(self.windows)
         self._pending = []
         self.windows.clear()
+        self.imu.clear()
         self.detector.finish()
         self._model_gap = None
         self.publish_status(advice=True)
@@ -450,6 +503,7 @@ class CalibrationNode(Node):
         self._last_result = {'success': response.success, 'message': response.message,
                              'predicted_accuracy': finite_or_none(accuracy),
                              'max_predicted_error': self.params['max_predicted_error']}
+        self._last_result.update(self._imu_report(response.success, response.message))
         self._model_gap = None
         self.publish_status()
         self._schedule_model_gap(held, None if cal is None or cal.thermal is None
@@ -545,6 +599,7 @@ class CalibrationNode(Node):
             raise refuse(self._refusal(verdict))
         for warning in verdict.warnings:
             self.get_logger().warning(warning)
+        self.solve_imu(windows, cal)
         bands = 0 if cal.thermal is None else len(cal.thermal.usable)
         self._keep_level_trim(cal)
         self._make_directory(self.path)
@@ -561,8 +616,47 @@ class CalibrationNode(Node):
                    f'residual {cal.residual_rms:.4f} m/s2, thermal bands {bands}')
         if cal.gyro_bias is not None:
             msg += f', gyro bias {np.round(cal.gyro_bias, 5).tolist()} rad/s'
+        msg += ''.join(f'. {outcome.line()}' for outcome in self._imu_result)
         self.record_history(cal, windows, weights, temps)
         return cal, msg
+
+    def solve_imu(self, windows, cal):
+        """
+        Fit the gyroscope and the magnetometer beside the accepted ``cal``; store what passes.
+
+        Never raises for them: an absent or insufficient sensor is reported (log, response,
+        ``~/status``) and left out of the file.
+        """
+        from ..core.imu import store
+        p = self.params
+        try:
+            gyro, mag = self.imu.solve(windows, cal, p['max_gyro_error'], p['max_mag_error'],
+                                       p['field_uT'] or None)
+        except (CalibrationError, InputError, ValueError, np.linalg.LinAlgError) as err:
+            from ..core.imu import SensorOutcome
+            gyro = SensorOutcome('gyroscope', 'insufficient', f'fit failed: {err}')
+            mag = SensorOutcome('magnetometer', 'insufficient', f'fit failed: {err}')
+        self._imu_result = (gyro, mag)
+        for outcome in (gyro, mag):
+            if outcome.status in ('insufficient', 'refused'):
+                self.get_logger().warning(f'{outcome.sensor} not calibrated '
+                                          f'({outcome.status}): {outcome.reason}')
+        store(cal, gyro, mag)
+
+    def _imu_report(self, success, message):
+        """Return the per-sensor statuses and the spec's ``gyro_*``/``mag_*`` keys of a solve."""
+        from ..core.imu import json_keys, SensorOutcome, sensors_dict
+        if not success or self._imu_result is None:
+            why = 'not fitted: the accelerometer calibration was refused'
+            gyro = SensorOutcome('gyroscope', 'not fitted', why, unit='relative')
+            mag = SensorOutcome('magnetometer', 'not fitted', why, unit='uT')
+        else:
+            gyro, mag = self._imu_result
+        self._imu_result = None
+        d = json_keys(gyro, mag)
+        d['sensors'] = sensors_dict('calibrated' if success else 'refused', gyro, mag,
+                                    None if success else message)
+        return d
 
     def history_path(self):
         """Return the history database path ('' = next to the calibration file)."""

@@ -12,6 +12,17 @@ message with
   left: the driver's noise covariance as it came. Without a gyro bias the rate passes
   through and, when the driver reports a covariance, the datasheet zero-rate offset
   (:data:`UNCALIBRATED_GYRO_BIAS_STD`)² is added to its diagonal;
+- with a ``gyro`` part (spec §9) the rate is ``L · Tg⁻¹ · (raw − bias)`` and a known
+  driver covariance C becomes ``L Tg⁻¹ C Tg⁻ᵀ Lᵀ`` plus what the calibration's own
+  uncertainty adds at that rate: ``(predicted accuracy · |ω|)² / 3`` per axis (the RMS
+  relative rate error over all directions, spread over the three axes); an unknown
+  driver covariance (all zeros, or ``[0] = -1``) passes as it came;
+- with a ``magnetometer`` part (spec §10), ``imu/mag`` (sensor_msgs/MagneticField,
+  tesla) is corrected into ``imu/mag_corrected`` (tesla, same header and frame):
+  ``L · Rᵀ · T⁻¹ · (raw − hard iron)``, covariance the driver's mapped the same way
+  (or, when it reports none, the fit's per-sample noise) plus
+  ``(predicted accuracy)² / 3`` per axis. Without a magnetometer part nothing is
+  published there, and ``/diagnostics`` says whether ``imu/mag`` arrives;
 - ``L`` the level trim (``level_roll_pitch_rad`` in the file, measured by ``~/level``),
   identity without one. The orientation and its covariance pass through untouched (the
   driver sends identity with ``orientation_covariance[0] = -1``), as does the header.
@@ -44,7 +55,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data, QoSProfile,
                        ReliabilityPolicy)
-from sensor_msgs.msg import Imu, Temperature
+from sensor_msgs.msg import Imu, MagneticField, Temperature
 from std_srvs.srv import Trigger
 
 from .common import calibration_path, declare_parameters, Param, run
@@ -60,6 +71,8 @@ QUEUE_DEPTH = 100
 """Subscription and publisher queue depth: 0.1 s at 1 kHz, rides out a file reload."""
 LEVEL_BUFFER = 5000
 """Raw samples kept for ``~/level`` (5 s at 1 kHz)."""
+TESLA_PER_UT = 1e-6
+"""sensor_msgs/MagneticField carries tesla; the calibration file µT."""
 WARN_PERIOD_S = 30.0
 """Throttle of the repeated warnings (temperature outside the calibrated range)."""
 
@@ -111,6 +124,68 @@ class Corrector:
         self._gyro_temp = None
         self._banded_gyro = cal is not None and cal.thermal is not None and \
             cal.thermal.gyro_bias(np.array([25.0])) is not None
+        self._imu_parts(cal)
+
+    def _imu_parts(self, cal):
+        """Precompute the gyroscope T and the magnetometer correction (spec §9, §10)."""
+        self.gyro_M = None          # L Tg⁻¹, or None without a gyro T
+        self.gyro_rate_var = 0.0    # (predicted accuracy)² / 3: variance per axis per |ω|²
+        self.mag_M = None           # L Rᵀ T⁻¹ of the magnetometer, or None
+        self.mag_hard_iron = (0.0, 0.0, 0.0)
+        self.mag_base_cov = None    # (9,) T²: calibration part, plus the fit's noise
+        self.mag_cal_var = 0.0      # T² per axis from the calibration's uncertainty
+        if cal is None:
+            return
+        L = np.asarray(cal.level_rotation(), float)
+        if cal.gyro_T is not None:
+            M = L @ np.linalg.inv(cal.gyro_T)
+            if not np.all(np.isfinite(M)):
+                raise InputError('the gyro calibration gives non-finite corrections')
+            self.gyro_M = _matrix_tuple(M)
+            acc = cal.gyro_predicted_accuracy
+            self.gyro_rate_var = 0.0 if acc is None else acc ** 2 / 3.0
+        mag = cal.magnetometer
+        if mag is not None:
+            M = L @ mag.correction
+            acc = mag.predicted_accuracy
+            self.mag_cal_var = 0.0 if acc is None else (acc * TESLA_PER_UT) ** 2 / 3.0
+            noise = mag.noise_std_uT     # without it an unknown covariance stays unknown
+            base = np.zeros((3, 3)) if noise is None else \
+                np.eye(3) * self.mag_cal_var + M @ M.T * (noise * TESLA_PER_UT) ** 2
+            self.mag_base_cov = np.ascontiguousarray(base, dtype=np.float64).reshape(9)
+            if not (np.all(np.isfinite(M)) and np.all(np.isfinite(mag.hard_iron_uT))):
+                raise InputError('the magnetometer calibration gives non-finite corrections')
+            self.mag_M = _matrix_tuple(M)
+            self.mag_hard_iron = tuple(float(v) for v in mag.hard_iron_uT)
+
+    def gyro_words(self):
+        """Say what the angular-velocity correction does ('none' without one)."""
+        if self.gyro_M is not None:
+            return 'bias, scale and misalignment'
+        return 'bias' if self.gyro_bias is not None else 'none'
+
+    def correct_mag(self, x, y, z):
+        """Corrected field (x, y, z) tesla from a raw one in tesla (needs ``mag_M``)."""
+        hx, hy, hz = self.mag_hard_iron
+        k = 1.0 / TESLA_PER_UT
+        x, y, z = _apply(self.mag_M, x * k - hx, y * k - hy, z * k - hz)
+        return x * TESLA_PER_UT, y * TESLA_PER_UT, z * TESLA_PER_UT
+
+    def mag_covariance(self, cov):
+        """
+        Return the covariance (9,) tesla² of a corrected field for the driver's ``cov`` (9,).
+
+        A known driver covariance is mapped through the correction; an unknown one (all
+        zeros or ``[0] = -1``) is replaced by the fit's per-sample noise mapped the same
+        way (zeros, unknown, when the file has no noise); the calibration's own
+        uncertainty is added on the diagonal.
+        """
+        c = np.asarray(cov, float).reshape(3, 3)
+        if c[0, 0] < 0.0 or not np.any(c):
+            return self.mag_base_cov
+        M = np.asarray(self.mag_M)
+        out = M @ c @ M.T + np.eye(3) * self.mag_cal_var
+        return np.ascontiguousarray(out, dtype=np.float64).reshape(9)
 
     def coefficients(self, temp):
         """Drift (quadratic, linear, offset) per axis at ``temp`` °C, or None (no drift)."""
@@ -150,10 +225,12 @@ class Corrector:
         return self._gyro_at
 
     def correct_gyro(self, x, y, z, temp):
-        """Angular rate (x, y, z) rad/s without the bias, in the levelled frame."""
+        """Angular rate (x, y, z) rad/s without the bias (and T), in the levelled frame."""
         bias = self.gyro_bias_at(temp)
         if bias is not None:
             x, y, z = x - bias[0], y - bias[1], z - bias[2]
+        if self.gyro_M is not None:
+            return _apply(self.gyro_M, x, y, z)
         if self.L is not None:
             return _apply(self.L, x, y, z)
         return x, y, z
@@ -163,19 +240,21 @@ class Corrector:
         Return the angular-velocity covariance to publish for the driver's ``cov`` (9,).
 
         None (publish it as it came) when the driver reports none (``[0] = -1``) or
-        unknown (all zeros), or when the gyro bias is removed and no level trim rotates
-        it; else what is left (plus the uncorrected zero-rate offset), rotated by the
-        level trim.
+        unknown (all zeros), or when the gyro bias is removed and neither a gyro T nor a
+        level trim maps it; else what is left (plus the uncorrected zero-rate offset),
+        mapped by ``L Tg⁻¹`` (the rate-dependent part of the calibration's uncertainty is
+        added per message: :attr:`gyro_rate_var`).
         """
         c = np.asarray(cov, float).reshape(3, 3)
-        if (self.gyro_bias is not None and self.L is None) or c[0, 0] < 0.0 \
-                or not np.any(c):
+        if (self.gyro_bias is not None and self.L is None and self.gyro_M is None) \
+                or c[0, 0] < 0.0 or not np.any(c):
             return None
         if self.gyro_bias is None:
             c = c + np.eye(3) * UNCALIBRATED_GYRO_BIAS_STD ** 2
-        if self.L is not None:
-            L = np.asarray(self.L)
-            c = L @ c @ L.T
+        M = self.gyro_M if self.gyro_M is not None else self.L
+        if M is not None:
+            M = np.asarray(M)
+            c = M @ c @ M.T
         return np.ascontiguousarray(c, dtype=np.float64).reshape(9)
 
 
@@ -219,6 +298,8 @@ class CorrectionNode(Node):
         self._warned_missing = False
         self._warned_no_temp = False
         self._samples = 0
+        self._mag_samples = 0       # imu/mag messages received
+        self._mag_published = 0
         self._dropped = 0           # messages not published: a non-finite field
         self._last_warn = {}
         self._temp_problem = ''
@@ -245,6 +326,9 @@ class CorrectionNode(Node):
         self.side_nodes = [self.stream]
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_subscription(Temperature, 'imu/temperature', self.on_temperature, sub_qos)
+        # The magnetometer (100 Hz) on this node: the stream node keeps the Imu path alone.
+        self.mag_pub = self.create_publisher(MagneticField, 'imu/mag_corrected', pub_qos)
+        self.create_subscription(MagneticField, 'imu/mag', self.on_mag, sub_qos)
         self.create_service(Trigger, '~/level', self.on_level)
         # One timer for both chores (fewer entities for the executor to wait on).
         self._next_diagnostics = 0.0
@@ -305,7 +389,15 @@ class CorrectionNode(Node):
                 np.isfinite(msg.angular_velocity_covariance if wcov is None else wcov)))
             c.wcov, c.cov_key = wcov, key
         if c.wcov is not None:
-            msg.angular_velocity_covariance = c.wcov
+            if c.gyro_rate_var:     # the calibration's relative error at this rate
+                wcov = c.wcov.copy()
+                extra = c.gyro_rate_var * (gx * gx + gy * gy + gz * gz)
+                wcov[0] += extra
+                wcov[4] += extra
+                wcov[8] += extra
+                msg.angular_velocity_covariance = wcov
+            else:
+                msg.angular_velocity_covariance = c.wcov
         check = x + y + z + gx + gy + gz + o.x + o.y + o.z + o.w
         if check - check != 0.0 or not c.cov_finite:      # NaN or infinite somewhere
             self._dropped += 1
@@ -314,6 +406,35 @@ class CorrectionNode(Node):
                     f'dropped {self._dropped} message(s) with a non-finite value')
             return
         self.pub.publish(msg)
+
+    def on_mag(self, msg):
+        """
+        Correct one magnetometer sample into ``imu/mag_corrected`` (with a magnetometer part).
+
+        :param msg: sensor_msgs/MagneticField from the driver, tesla (modified, published).
+        """
+        self._mag_samples += 1
+        c = self.corrector
+        if c.mag_M is None:
+            return
+        f = msg.magnetic_field
+        f.x, f.y, f.z = x, y, z = c.correct_mag(f.x, f.y, f.z)
+        cov = c.mag_covariance(msg.magnetic_field_covariance)
+        if x - x != 0.0 or y - y != 0.0 or z - z != 0.0 or not np.all(np.isfinite(cov)):
+            self._dropped += 1
+            return
+        msg.magnetic_field_covariance = cov
+        self._mag_published += 1
+        self.mag_pub.publish(msg)
+
+    def magnetometer_state(self):
+        """Say what happens to ``imu/mag`` (diagnostics)."""
+        if self.corrector.mag_M is not None:
+            return ('corrected on imu/mag_corrected' if self._mag_samples
+                    else 'calibrated, but no imu/mag received')
+        if self._mag_samples:
+            return 'imu/mag arrives but the calibration has no magnetometer part: not corrected'
+        return 'no imu/mag received, no magnetometer calibration'
 
     # -- the calibration file ----------------------------------------------------------------
     def check_file(self, initial=False):
@@ -365,6 +486,8 @@ class CorrectionNode(Node):
             f'per-axis std {np.round(std, 4).tolist()} m/s2'
             + (f', predicted accuracy {acc:.4f} m/s2' if acc is not None else '')
             + (', gyro bias' if cal.gyro_bias is not None else '')
+            + (', gyro scale and misalignment' if cal.gyro_T is not None else '')
+            + (', magnetometer' if cal.magnetometer is not None else '')
             + (', level trim' if cal.level_roll_pitch_rad is not None else '') + ')')
         self._check_range()
 
@@ -466,7 +589,9 @@ class CorrectionNode(Node):
             status.message = ('uncalibrated: passing the raw acceleration through with '
                               f'covariance ({UNCALIBRATED_STD} m/s2)^2 per axis')
         else:
-            status.message = f'{cal.method} calibration applied'
+            status.message = (f'{cal.method} calibration applied; gyro: '
+                              f'{self.corrector.gyro_words()}; magnetometer: '
+                              f'{self.magnetometer_state()}')
         problems = [p for p in (self._file_problem, self._temp_problem) if p]
         if self._file_problem and cal is not None:
             problems[0] += ': keeping the last good calibration'
@@ -483,7 +608,15 @@ class CorrectionNode(Node):
                            'predicted_accuracy_m_s2': cal.predicted_accuracy,
                            'temperature_range_c': cal.temperature_range_c,
                            'gyro_bias': cal.gyro_bias is not None,
+                           'gyro_correction': self.corrector.gyro_words(),
+                           'gyro_predicted_accuracy': cal.gyro_predicted_accuracy,
+                           'magnetometer_predicted_accuracy_uT': None
+                           if cal.magnetometer is None
+                           else cal.magnetometer.predicted_accuracy,
                            'level_trim': cal.level_roll_pitch_rad is not None})
+        values.update({'magnetometer': self.magnetometer_state(),
+                       'mag_samples': self._mag_samples,
+                       'mag_corrected_published': self._mag_published})
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()

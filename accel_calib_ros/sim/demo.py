@@ -12,7 +12,11 @@ The device turns the sensor through a scripted sequence of random poses. Once th
 calibration node has collected the first ``--poses`` windows, the demo calls
 ``~/calibrate``; the remaining poses were never seen by the calibration, and the
 demo compares raw and corrected acceleration there with the truth (the simulated
-sensor's own parameters), before and after.
+sensor's own parameters), before and after; then the angular rate (the device's
+gyroscope has scale and misalignment errors, which the calibration node fits from the
+moves between the windows), and the magnetic field when ``imu/mag`` is published (the
+driver does so from frame version 2's magnetometer block; with version-1 frames the
+demo says it is absent).
 
 With ``--board`` (``make demo-board``) the frames come from the real firmware instead:
 its ELF runs on an emulated Arduino Uno (simavr) with an emulated MPU-9250 whose
@@ -86,8 +90,11 @@ class _Client:
         self.node = rclpy.create_node('accel_calib_demo', context=self.context)
         self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
+        from sensor_msgs.msg import MagneticField
         self.status = {}
         self.raw, self.corrected = {}, {}
+        self.raw_rate, self.corrected_rate = {}, {}
+        self.raw_mag, self.corrected_mag = {}, {}
         self.collect = False
         latched = QoSProfile(depth=1, durability=QoSDurabilityPolicy.TRANSIENT_LOCAL)
         self.node.create_subscription(String, 'accel_calibration/status', self._on_status,
@@ -95,6 +102,10 @@ class _Client:
         self.node.create_subscription(Imu, 'imu/data_raw', self._on_raw, qos_profile_sensor_data)
         self.node.create_subscription(Imu, 'imu/corrected', self._on_corrected,
                                       qos_profile_sensor_data)
+        self.node.create_subscription(MagneticField, 'imu/mag', self._on_raw_mag,
+                                      qos_profile_sensor_data)
+        self.node.create_subscription(MagneticField, 'imu/mag_corrected',
+                                      self._on_corrected_mag, qos_profile_sensor_data)
         self.calibrate = self.node.create_client(Trigger, 'accel_calibration/calibrate')
         self.Trigger = Trigger
 
@@ -113,13 +124,33 @@ class _Client:
         except ValueError:
             pass
 
+    @staticmethod
+    def _rate(msg):
+        w = msg.angular_velocity
+        return (w.x, w.y, w.z)
+
+    @staticmethod
+    def _field(msg):
+        f = msg.magnetic_field
+        return (f.x * 1e6, f.y * 1e6, f.z * 1e6)       # tesla -> µT
+
     def _on_raw(self, msg):
         if self.collect:
             self.raw[self._key(msg)] = self._vec(msg)
+            self.raw_rate[self._key(msg)] = self._rate(msg)
 
     def _on_corrected(self, msg):
         if self.collect:
             self.corrected[self._key(msg)] = self._vec(msg)
+            self.corrected_rate[self._key(msg)] = self._rate(msg)
+
+    def _on_raw_mag(self, msg):
+        if self.collect:
+            self.raw_mag[self._key(msg)] = self._field(msg)
+
+    def _on_corrected_mag(self, msg):
+        if self.collect:
+            self.corrected_mag[self._key(msg)] = self._field(msg)
 
     def spin(self, seconds):
         deadline = time.monotonic() + seconds
@@ -205,7 +236,8 @@ def run_ros_demo(args):
                                  '--count', str(total), '--hold', str(args.hold), '--move',
                                  str(args.move), '--rate', str(args.rate), '--seed',
                                  str(args.seed), '--truth-out', truth_path, '--corrupt',
-                                 str(args.corrupt)], os.path.join(work, 'device.log'), env))
+                                 str(args.corrupt), '--gyro-errors', '--magnetometer'],
+                                os.path.join(work, 'device.log'), env))
         if not _wait_for(link, 20) or not _wait_for(truth_path, 20):
             print('demo: the simulated device did not start; see device.log', file=sys.stderr)
             return 1
@@ -213,7 +245,8 @@ def run_ros_demo(args):
         procs.append(_start(['accel_calib_ros.nodes.driver'] + ros + [f'port:={link}'],
                             os.path.join(work, 'driver.log'), env))
         procs.append(_start(['accel_calib_ros.nodes.calibration'] + ros +
-                            [f'calibration_file:={calib_path}', '-p', f'method:={args.method}'],
+                            [f'calibration_file:={calib_path}', '-p', f'method:={args.method}',
+                             '-p', f'field_uT:={FIELD_UT}'],
                             os.path.join(work, 'calibration.log'), env))
         procs.append(_start(['accel_calib_ros.nodes.correction'] + ros +
                             [f'calibration_file:={calib_path}'],
@@ -241,8 +274,9 @@ def run_ros_demo(args):
         if not response.success:
             return 1
         client.spin(1.5)             # the correction node takes the new file up within 1 s
-        client.raw.clear()
-        client.corrected.clear()
+        for store in (client.raw, client.corrected, client.raw_rate, client.corrected_rate,
+                      client.raw_mag, client.corrected_mag):
+            store.clear()
         print(f'holding {args.fresh} fresh poses the calibration never saw...')
         client.spin(args.fresh * (args.hold + args.move) + 1.0)
         return _report(client, truth_path)
@@ -270,29 +304,106 @@ def _report(client, truth_path):
     print(f'\nerror against the truth over {len(keys)} samples at fresh poses (m/s²):')
     print(f'  raw        RMS {np.sqrt(np.mean(before ** 2)):.4f}   max {before.max():.4f}')
     print(f'  corrected  RMS {np.sqrt(np.mean(after ** 2)):.4f}   max {after.max():.4f}')
+    _report_rates(client, truth, keys)
+    _report_field(client, truth)
     return 0
+
+
+def _rms(v):
+    return float(np.sqrt(np.mean(np.sum(np.asarray(v) ** 2, axis=1))))
+
+
+def _report_rates(client, truth, keys):
+    """Raw and corrected angular rate against the truth (the simulated gyro's inverse)."""
+    T = np.asarray(truth.get('gyro_T', np.eye(3)), float)
+    bias = np.asarray(truth.get('gyro_bias_rad_s', np.zeros(3)), float)
+    raw = np.array([client.raw_rate[k] for k in keys])
+    corrected = np.array([client.corrected_rate[k] for k in keys])
+    true = np.linalg.solve(T, (raw - bias).T).T
+    print(f'  gyroscope over the same samples (rad/s, turns between the poses included; true '
+          f'rate RMS {_rms(true):.4f}):')
+    print(f'    raw        RMS {_rms(raw - true):.5f}')
+    print(f'    corrected  RMS {_rms(corrected - true):.5f}')
+
+
+def _report_field(client, truth):
+    """Raw and corrected magnetic field against the truth, when imu/mag was published."""
+    keys = sorted(set(client.raw_mag) & set(client.corrected_mag))
+    if not client.raw_mag:
+        print('  magnetometer: imu/mag is absent (the driver publishes it from frame version '
+              "2's magnetometer block; this device sends version 1)")
+        return
+    if not keys or 'magnetometer' not in truth:
+        print(f'  magnetometer: {len(client.raw_mag)} imu/mag samples but '
+              + ('no imu/mag_corrected (no magnetometer calibration)' if not keys
+                 else 'no magnetometer truth'))
+        return
+    m = truth['magnetometer']
+    T, R, h = (np.asarray(m[k], float) for k in ('T', 'R', 'hard_iron_uT'))
+    raw = np.array([client.raw_mag[k] for k in keys])
+    corrected = np.array([client.corrected_mag[k] for k in keys])
+    true = np.linalg.solve(T, (raw - h).T).T @ R      # the simulated magnetometer's inverse
+    print(f'  magnetometer over {len(keys)} samples (µT; field {FIELD_UT:g} µT given to the '
+          'calibration node):')
+    print(f'    raw        RMS {_rms(raw - true):.3f}')
+    print(f'    corrected  RMS {_rms(corrected - true):.3f}')
 
 
 def run_offline_demo(args):
-    """Without ROS: simulate a session, fit it with both methods, show the correction."""
+    """Without ROS: simulate a session, fit all three sensors, show the correction."""
     from ..core.accel.calibration import calibrate
-    from ..core.simulate import mpu9250_like, random_directions, simulate_session
+    from ..core.imu import solve_gyro, solve_magnetometer
+    from ..core.simulate import (ak8963_like, EarthField, mpu9250_like, random_directions,
+                                 random_poses, simulate_session, with_gyro_errors)
     from ..core.windows import detect_static_windows
     rng = np.random.default_rng(args.seed)
     sensor = mpu9250_like(rng)
-    session = simulate_session(sensor, random_directions(args.poses, rng), rng,
-                               hold_s=args.hold, move_s=args.move)
+    sensor = with_gyro_errors(sensor, np.random.default_rng([args.seed, 19, 1]))
+    sensor.magnetometer = ak8963_like(np.random.default_rng([args.seed, 19, 2]))
+    earth = EarthField(FIELD_UT, 60.0)
+    session = simulate_session(sensor, random_poses(args.poses, rng), rng, hold_s=args.hold,
+                               move_s=args.move, earth_field=earth, tremor_deg=0.3)
     windows = detect_static_windows(session.samples)
     fresh = 9.80665 * random_directions(200, rng)
     raw = sensor.distort(fresh)
-    print(f'simulated {args.poses} poses, {len(windows)} static windows found')
-    print(f'raw error at fresh poses: RMS {np.sqrt(np.mean((raw - fresh) ** 2)):.4f} m/s²')
+    print(f'simulated {args.poses} hand-held poses (accelerometer, gyroscope with scale and '
+          f'misalignment errors, AK8963-like magnetometer), {len(windows)} static windows found')
+    print('error against the truth at 200 fresh directions the calibration never saw:')
+    print(f'accelerometer raw error RMS {_rms(raw - fresh):.4f} m/s² (at 1 g)')
+    cal = None
     for method in ('gn', 'ml'):
-        cal = calibrate(windows.mean, method=method, weights=windows.weights(5.0, 100.0))
-        err = cal.correct(raw) - fresh
-        print(f'{method}: corrected error RMS {np.sqrt(np.mean(err ** 2)):.4f} m/s² '
-              f'({cal.iterations} iterations)')
+        cal = calibrate(windows.mean, method=method, weights=windows.weights(5.0, 100.0),
+                        noise_std=windows.noise_std)
+        print(f'accelerometer {method}: corrected error RMS '
+              f'{_rms(cal.correct(raw) - fresh):.4f} m/s² ({cal.iterations} iterations)')
+    gyro = solve_gyro(session.samples, windows, cal)
+    rates = random_directions(200, rng)                     # 1 rad/s in every direction
+    raw_rate = rates @ sensor.gyro_T.T + sensor.gyro_bias
+    print(f'gyroscope raw error RMS {_rms(raw_rate - rates):.4f} rad/s at 1 rad/s '
+          f'(bias {np.linalg.norm(sensor.gyro_bias):.4f} rad/s)')
+    if gyro.calibrated:
+        print(f'gyroscope corrected error RMS {_rms(gyro.result.correct(raw_rate) - rates):.4f} '
+              f'rad/s (predicted {gyro.predicted_accuracy:.5f} of the rate, '
+              f'{gyro.result.moves_used} moves)')
+    else:
+        print(f'gyroscope not calibrated: {gyro.reason}')
+    mag = solve_magnetometer(session.samples, windows, cal, field_uT=FIELD_UT)
+    field = FIELD_UT * random_directions(200, rng)
+    raw_field = sensor.magnetometer.distort(field)
+    print(f'magnetometer raw error RMS {_rms(raw_field - field):.3f} µT in a {FIELD_UT:g} µT '
+          'field')
+    if mag.calibrated:
+        print(f'magnetometer corrected error RMS {_rms(mag.result.correct(raw_field) - field):.3f}'
+              f' µT (predicted {mag.predicted_accuracy:.3f} µT; field magnitude given, as from '
+              'a geomagnetic model)')
+    else:
+        print(f'magnetometer not calibrated: {mag.reason}')
     return 0
+
+
+FIELD_UT = 48.0
+"""Magnitude of the simulated Earth field, µT (given to the magnetometer fit, as a user
+would from a geomagnetic model: the fit cannot tell it from the sensor's own scale)."""
 
 
 def _advice_line(status):

@@ -7,6 +7,13 @@ held poses (core simulator), the frames carry a ``seq`` counter and a µs device
 that starts at an arbitrary value and wraps. ``SIGUSR1`` unplugs the device for
 ``--unplug-s`` seconds and plugs it back in on a new pty (the link is re-pointed);
 ``SIGINT``/``SIGTERM`` stop it. A summary goes to stderr on exit.
+
+``--gyro-errors`` gives the gyroscope a datasheet-sized scale and misalignment (the rates
+on the wire still integrate to the scripted turns) and ``--magnetometer`` an AK8963-like
+magnetometer in a 48 µT, 60° dip field: its samples (µT, accelerometer frame, NaN
+between its 100 Hz samples) are in :attr:`VirtualSensor.last_mag` after each
+:meth:`VirtualSensor.counts`; the frames sent are still version 1, without them (frame
+v2's magnetometer block is the wire's to add).
 """
 
 import argparse
@@ -114,6 +121,11 @@ def add_arguments(parser):
                         help='seconds unplugged after SIGUSR1 (default %(default)s)')
     parser.add_argument('--duration', type=_positive, default=None,
                         help='stop after this many seconds (default: run until SIGINT)')
+    parser.add_argument('--gyro-errors', action='store_true',
+                        help='gyroscope scale ±3 %% and cross-axis ±2 %% (datasheet)')
+    parser.add_argument('--magnetometer', action='store_true',
+                        help='simulate an AK8963-like magnetometer too (its samples are not '
+                             'sent in version-1 frames)')
     return parser
 
 
@@ -181,6 +193,7 @@ class VirtualSensor:
                 raise DeviceError(str(err)) from None
             if gyro is not None:
                 self.sensor.gyro_noise_std = gyro
+        self._imu_parts(args)
         self.args = args
         self.directions = _directions(args, self.rng)
         self.converter = Converter(args.accel_range, args.gyro_range)
@@ -188,6 +201,18 @@ class VirtualSensor:
         self._stream = None
         self._played = False
         self._queue = []
+        self.last_mag = None        # magnetometer samples of the last counts(), µT
+        self._field = None          # field in the body frame at the last sample, µT
+
+    def _imu_parts(self, args):
+        """Gyroscope errors and magnetometer from generators of their own (issue 19)."""
+        from ..core.simulate import ak8963_like, with_gyro_errors
+        if getattr(args, 'gyro_errors', False):
+            self.sensor = with_gyro_errors(self.sensor,
+                                           np.random.default_rng([args.seed, 19, 1]))
+        if getattr(args, 'magnetometer', False):
+            self.sensor.magnetometer = ak8963_like(np.random.default_rng([args.seed, 19, 2]))
+        self._mag_rng = np.random.default_rng([args.seed, 19, 3])
 
     def truth(self):
         """Return the true parameters as a YAML-ready mapping (m/s², °C, s)."""
@@ -203,7 +228,21 @@ class VirtualSensor:
                 'rate_hz': float(a.rate), 'accel_range_g': a.accel_range,
                 'gyro_range_dps': a.gyro_range, 'directions': self.directions.tolist(),
                 'hold_s': float(a.hold), 'move_s': float(a.move),
-                'temperature_c': list(a.temp_ramp) if a.temp_ramp else float(a.temp)}
+                'temperature_c': list(a.temp_ramp) if a.temp_ramp else float(a.temp),
+                'gyro_bias_rad_s': s.gyro_bias.tolist(), 'gyro_T': s.gyro_T.tolist(),
+                **self._magnetometer_truth()}
+
+    def _magnetometer_truth(self):
+        """Return the magnetometer's true parameters and the field, or {} without one."""
+        mag = self.sensor.magnetometer
+        if mag is None:
+            return {}
+        from ..core.simulate import EarthField
+        field = EarthField()
+        return {'magnetometer': {'T': mag.T.tolist(), 'hard_iron_uT': mag.hard_iron.tolist(),
+                                 'R': mag.R.tolist(), 'noise_std_uT': mag.noise_std.tolist(),
+                                 'rate_hz': float(mag.rate_hz)},
+                'earth_field': {'field_uT': field.field_uT, 'dip_deg': field.dip_deg}}
 
     def _script(self):
         """Return the scripted session as a generator of (n, 7) count blocks."""
@@ -217,7 +256,9 @@ class VirtualSensor:
                                   temperature=temperature,
                                   chunk_rows=max(int(CHUNK_S * a.rate), 1)):
             s = piece.samples
-            yield self.converter.to_counts_array(s.accel, s.temp, s.gyro)
+            if piece.true_field is not None:
+                self._field = piece.true_field[-1]
+            yield self.converter.to_counts_array(s.accel, s.temp, s.gyro), s.mag
 
     def _next_block(self, t_next):
         """Return the next block of counts: the script, then the last pose held (or again)."""
@@ -240,7 +281,16 @@ class VirtualSensor:
         true = np.tile(a.gravity * self.directions[-1], (n, 1))
         accel = self.sensor.measure(true, self.rng, temp, t)
         gyro = self.rng.standard_normal((n, 3)) * self.sensor.gyro_noise_std
-        return self.converter.to_counts_array(accel, temp, gyro)
+        return self.converter.to_counts_array(accel, temp, gyro), self._held_mag(t)
+
+    def _held_mag(self, t):
+        """Magnetometer samples (n, 3) µT of the last pose held (NaN between its samples)."""
+        mag = self.sensor.magnetometer
+        if mag is None or self._field is None:
+            return None
+        from ..core.simulate import measure_mag
+        return measure_mag(mag, np.tile(self._field, (len(t), 1)), t, 1.0 / self.args.rate,
+                           self._mag_rng)
 
     def counts(self, n, t_next):
         """
@@ -248,18 +298,21 @@ class VirtualSensor:
 
         :param t_next: session time of the first of them, s.
         """
-        parts, have = [], 0
+        parts, mags, have = [], [], 0
         while have < n:
             if not self._queue:
                 self._queue.append(self._next_block(t_next + have / self.args.rate))
-            block = self._queue[0]
+            block, mag = self._queue[0]
             take = min(n - have, len(block))
             parts.append(block[:take])
+            mags.append(np.full((take, 3), np.nan) if mag is None else mag[:take])
             if take == len(block):
                 self._queue.pop(0)
             else:
-                self._queue[0] = block[take:]
+                self._queue[0] = (block[take:], None if mag is None else mag[take:])
             have += take
+        self.last_mag = None if self.sensor.magnetometer is None else (
+            np.concatenate(mags) if mags else np.zeros((0, 3)))
         return np.concatenate(parts) if parts else np.zeros((0, 7), np.int16)
 
 
