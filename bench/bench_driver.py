@@ -18,9 +18,9 @@ import argparse
 import sys
 import time
 
-from accel_calib_ros.dataio.mpu9250_frame import (AsciiLineParser, ClockMapper, Converter,
-                                                  encode_ascii_line, encode_frame, FRAME_SIZE,
-                                                  FrameParser, RawFrame, SPIKE_COUNTS)
+from accel_calib_ros.dataio.wire import (AsciiLineParser, ClockMapper, Converter, encode,
+                                         encode_ascii_line, FRAME_SIZE, FrameParser, RawFrame,
+                                         SPIKE_COUNTS)
 import numpy as np
 
 
@@ -30,7 +30,7 @@ def make_stream(n, rng):
     counts = counts.tolist()
     frames = [RawFrame(k & 0xFF, (4_290_000_000 + 5000 * k) & 0xFFFFFFFF, tuple(c))
               for k, c in enumerate(counts)]
-    return frames, b''.join(encode_frame(*f) for f in frames)
+    return frames, b''.join(encode(f) for f in frames)
 
 
 def corrupt(data, fraction, rng):
@@ -61,7 +61,7 @@ def make_1khz_stream(n, rng, kind):
     counts[:, 3] = 1335 + rng.integers(-30, 31, n)              # about 25 °C
     frames = [RawFrame(k & 0xFF, (4_290_000_000 + 1000 * k) & 0xFFFFFFFF, tuple(c))
               for k, c in enumerate(counts.tolist())]
-    return frames, b''.join(encode_frame(*f) for f in frames)
+    return frames, b''.join(encode(f) for f in frames)
 
 
 def garbage_table(n, rng, spike=False):
