@@ -162,13 +162,13 @@ class NoisyLink(RuleBasedStateMachine):
 
     @rule()
     def pause(self):
-        """The port timed out: the driver flushes the held frame."""
+        """Flush the held frame, as the driver does when the port times out."""
         self.published += self.parser.flush()
 
     @precondition(lambda self: self.version == 2 and len(self.wire) >= 2)
     @rule(data=st.data())
     def flip_bits(self, data):
-        """Up to 16 adjacent bits flipped: a burst CRC-16 always detects."""
+        """Flip up to 16 adjacent bits: a burst CRC-16 always detects."""
         at = data.draw(st.integers(0, len(self.wire) - 2))
         pattern = data.draw(st.integers(1, 0xFFFF))
         self.wire[at] ^= pattern >> 8
@@ -195,21 +195,21 @@ class NoisyLink(RuleBasedStateMachine):
     @precondition(lambda self: self.version == 2 and self.wire)
     @rule(data=st.data())
     def burst(self, data):
-        """5..50 bytes of line noise in place of what was sent."""
+        """Replace 5..50 bytes with line noise."""
         at = data.draw(st.integers(0, len(self.wire) - 1))
         noise = data.draw(st.binary(min_size=5, max_size=50))
         self.wire[at:at + len(noise)] = noise
 
     @rule(data=st.data())
     def junk(self, data):
-        """A long stretch of garbage (the link quality swings down), then frames again."""
+        """Send a long stretch of garbage (the link quality swings down)."""
         seed = data.draw(st.integers(0, 2 ** 32 - 1))
         size = data.draw(st.sampled_from([50, 600, 5000]))
         self.wire += random.Random(seed).randbytes(size)
 
     @rule(data=st.data(), version=st.sampled_from([1, 2]))
     def device_restart(self, data, version):
-        """The board restarts: seq and its clock start anew (maybe another frame version)."""
+        """Restart the board: seq and its clock start anew (maybe another frame version)."""
         self._feed(self.wire)
         self.wire = bytearray()
         self.version = version
@@ -218,7 +218,7 @@ class NoisyLink(RuleBasedStateMachine):
 
     @rule()
     def reconnect(self):
-        """The driver reopened the port: unread bytes are gone, the parser starts over."""
+        """Reopen the port: unread bytes are gone, the parser starts over."""
         self.wire = bytearray()
         self.published += self.parser.flush()
         self.parser.reset()
@@ -226,7 +226,7 @@ class NoisyLink(RuleBasedStateMachine):
     @precondition(lambda self: self.version == 2)
     @rule(n=st.integers(2, 8), data=st.data())
     def clean_run_is_published(self, n, data):
-        """After any damage, a clean run of version-2 frames comes out whole."""
+        """Send a clean run of version-2 frames: after any damage it comes out whole."""
         self._feed(self.wire)
         self.wire = bytearray()
         run = [self._frame(data, data.draw(st.booleans())) for _ in range(n)]

@@ -482,7 +482,7 @@ def test_an_intact_frame_ending_in_0xa5_and_a_next_frame_without_its_first_byte(
 
 
 def jittered(frames, rng, jitter_us):
-    """The t_us a polling firmware would send: the read time, late by 0..jitter_us."""
+    """Return the frames with the t_us of a polling firmware: late by 0..jitter_us."""
     return [f._replace(t_us=(f.t_us + int(rng.integers(0, jitter_us + 1))) & 0xFFFFFFFF)
             for f in frames]
 
