@@ -6,10 +6,12 @@ says; the node runs in its own rclpy Context with an executor spun by the test.
 """
 
 import os
+import threading
 import time
 import tty
 
-from accel_calib_ros.dataio.mpu9250_frame import encode_frame, encode_info, InfoFrame
+from accel_calib_ros.dataio.wire import (encode_frame, encode_frame_v2, encode_info,
+                                         encode_info_v2, InfoFrame)
 from accel_calib_ros.nodes.driver import build_node
 from diagnostic_msgs.msg import DiagnosticArray
 import pytest
@@ -175,3 +177,37 @@ def test_reader_survives_an_exception_and_reports_it(rigs):
     assert rig.spin_until(lambda: len(rig.imu) >= 150, 10)      # the reader restarted
     assert rig.spin_until(lambda: rig.status()[1] is not None
                           and rig.status()[1]['reader_errors'] == '1', 5)
+
+
+def test_info_v2_recoveries_and_frame_version_in_diagnostics(rigs):
+    """Firmware 2.x: frame version 2 and its recovery counters reach /diagnostics."""
+    rig = rigs()
+    time.sleep(0.3)
+    info = InfoFrame(0, 0x71, 4, 500, 1000, 1, 1_000_000, (2, 0), frame_version=2,
+                     mag_status=0, info_version=2)
+    rig.write(encode_info_v2(info))
+    rig.write(b''.join(encode_frame_v2(k, 1000 * k, (0, 0, 8192, 1335, 0, 0, 0))
+                       for k in range(200)))
+    assert rig.spin_until(lambda: len(rig.imu) >= 199, 10)
+    assert rig.imu[-1].linear_acceleration.z == pytest.approx(9.80665)       # ±4 g
+    rig.write(encode_info_v2(info._replace(recoveries=2, i2c_errors=9, last_recovery=4)))
+
+    def stream():                                           # 40 samples lost in the recovery
+        for k in range(200, 2200, 10):
+            rig.write(b''.join(encode_frame_v2(j + 40, 1000 * j + 40_000,
+                                               (0, 0, 8192, 1335, 0, 0, 0))
+                               for j in range(k, k + 10)))
+            time.sleep(0.01)
+    writer = threading.Thread(target=stream, daemon=True)
+    writer.start()
+
+    def reported():
+        status, values = rig.status()
+        return values is not None and 'recovered' in status.message
+    assert rig.spin_until(reported, 5)
+    writer.join(5)
+    status, values = rig.status()
+    assert values['frame_version'] == '2' and values['frames_v2'] == values['frames']
+    assert values['firmware_last_recovery'] == 'I2C bus stuck (SDA held low)'
+    assert values['firmware_i2c_errors'] == '9' and values['lost_frames'] == '40'
+    assert status.level == b'\x01' and 'recovered the sensor 2 times' in status.message

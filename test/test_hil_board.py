@@ -182,7 +182,7 @@ def serial_status(collector):
     return None
 
 
-def run_chain(board, elf, tmp_path, seconds, baud):
+def run_chain(board, elf, tmp_path, seconds, baud, *board_args):
     """Board on a pty + driver subprocess + reliable collector; return what was collected."""
     link = str(tmp_path / 'uno')
     log = tmp_path / 'samples.log'
@@ -200,7 +200,7 @@ def run_chain(board, elf, tmp_path, seconds, baud):
         collector.spin(0.5)
         board_proc = subprocess.Popen(
             [board['harness'], '--elf', elf, '--link', link, '--seconds', str(seconds),
-             '--log', str(log), '--wait-open', '60', '--seed', '7'],
+             '--log', str(log), '--wait-open', '60', '--seed', '7'] + list(board_args),
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         procs.procs.append(board_proc)
         started = time.monotonic()
@@ -286,3 +286,25 @@ def test_115200_baud_loss_is_reported(board, tmp_path):
     positions = [index[counts_of(m, conv)] for m in msgs[IMU]]
     assert positions == sorted(positions) and len(set(positions)) == len(positions)
     assert math.isclose(len(positions) + lost, positions[-1] - positions[0] + 1, abs_tol=3)
+
+
+@pytest.mark.ros
+def test_driver_through_firmware_recoveries(board, tmp_path):
+    """INT silent for 50 ms, then SDA held low for 30 ms: the driver counts what was lost."""
+    report, msgs, status, driver_log, log = run_chain(
+        board, board['elf'], tmp_path, 7.0, 1_000_000,
+        '--fault', 'int-silent:3000:50', '--fault', 'sda-stuck:4500:30')
+    assert report['state'] == 'running' and [f['active'] for f in report['faults']] == [0, 0]
+    assert 'Traceback' not in driver_log
+    conv = Converter(2, 250)
+    index = {tuple(c[:3]) + tuple(c[4:]): k for k, (_, _, c) in enumerate(log)}
+    positions = [index[counts_of(m, conv)] for m in msgs[IMU]]   # every value a real sample
+    assert positions == sorted(positions) and len(set(positions)) == len(positions)
+    missing = positions[-1] - positions[0] + 1 - len(positions)
+    assert 80 <= missing <= 90                                   # 50 + 30 ms, and detection
+    assert int(status['lost_frames']) == missing                 # all counted, by seq
+    assert int(status['crc_errors']) == 0 and int(status['rejected']) == 0
+    assert int(status['firmware_recoveries']) >= 2
+    assert status['firmware_last_recovery'] == 'I2C bus stuck (SDA held low)'
+    assert status['frame_version'] == '2'
+    assert 'recovered the sensor' in driver_log
