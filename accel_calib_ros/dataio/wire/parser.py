@@ -69,7 +69,8 @@ class FrameParser:
       ``seq`` gap modulo 256; version 2: n is the ``seq`` gap itself) and the temperature
       moved less than :data:`TEMP_STEP_C`;
     - after a resynchronisation (start, reconnect, device restart or a gap over
-      :data:`MAX_GAP_S`) a frame is confirmed by a later candidate that continues it;
+      :data:`MAX_GAP_S`) a frame is confirmed by a later candidate that continues it
+      (within 16 samples for version 1, 4096 for version 2, at a rate of 1 Hz..20 kHz);
     - optionally (``spike_counts``, off by default because it assumes a band-limited
       signal) it is not a one-sample spike larger than ``spike_counts`` on an axis
       between two adjacent neighbours that agree with each other; the newest frame is then
@@ -216,8 +217,9 @@ class FrameParser:
         if dt == 0 or dt > MAX_GAP_S * 1e6:
             return 0
         dseq = (b.seq - a.seq) & (0xFF if b.version == 1 else 0xFFFF)
-        if period is None:
-            if not 1 <= dseq <= 16 or not 50.0 <= dt / dseq <= 1e6:
+        if period is None:              # re-locking: a short gap at a plausible rate
+            if not 1 <= dseq <= (16 if b.version == 1 else 4096) or \
+                    not 50.0 <= dt / dseq <= 1e6:
                 return 0
             n = dseq
         else:
