@@ -20,8 +20,8 @@ import tty
 
 import numpy as np
 
-from .dataio.mpu9250_frame import (ACCEL_LSB_PER_G, Converter, encode_ascii_line, encode_frame,
-                                   FRAME_SIZE, GYRO_LSB_PER_DPS)
+from .dataio.wire import (ACCEL_LSB_PER_G, Converter, encode_ascii_line, encode_frame,
+                          encode_frame_v2, GYRO_LSB_PER_DPS)
 
 CHUNK_S = 10.0
 """Seconds of samples simulated at a time once the script has ended."""
@@ -110,6 +110,9 @@ def add_arguments(parser):
                         help='fraction of bytes to flip on the wire, e.g. 0.02 (default 0)')
     parser.add_argument('--ascii', action='store_true',
                         help='stream the ASCII line format (t_us,ax,ay,az,temp,gx,gy,gz)')
+    parser.add_argument('--frame-version', type=int, choices=(1, 2), default=2,
+                        help='binary frame version: 2 (CRC-16, the firmware default) or 1 '
+                             '(default %(default)s)')
     parser.add_argument('--unplug-s', type=_non_negative, default=2.0,
                         help='seconds unplugged after SIGUSR1 (default %(default)s)')
     parser.add_argument('--duration', type=_positive, default=None,
@@ -273,6 +276,7 @@ class Wire:
 
     def __init__(self, args, rng):
         self.ascii = args.ascii
+        self.version = getattr(args, 'frame_version', 2)
         self.corrupt = args.corrupt
         self.rng = rng
         self.period_us = 1e6 / args.rate
@@ -282,16 +286,24 @@ class Wire:
         self.bytes_corrupted = 0
         self.frames_damaged = 0
 
-    def encode(self, counts, first_index):
-        """Encode samples number ``first_index``... as bytes (corrupted if asked)."""
+    def encode(self, counts, first_index, mag=None):
+        """
+        Encode samples number ``first_index``... as bytes (corrupted if asked).
+
+        :param counts: (n, 7) int16 counts.
+        :param mag: None, or n entries each None or (hx, hy, hz, st2): AK8963 counts in its
+            own axes (e.g. from ``MagConverter.to_counts``), sent in version-2 frames.
+        """
         pieces, sizes = [], []
         for k, row in enumerate(counts.tolist()):
             t_us = (self.t0_us + int(round((first_index + k) * self.period_us))) & 0xFFFFFFFF
             if self.ascii:
                 piece = encode_ascii_line(row, t_us)
+            elif self.version == 2:
+                piece = encode_frame_v2(self.seq, t_us, row, None if mag is None else mag[k])
             else:
                 piece = encode_frame(self.seq, t_us, row)
-            self.seq = (self.seq + 1) & 0xFF
+            self.seq = (self.seq + 1) & (0xFFFF if self.version == 2 else 0xFF)
             pieces.append(piece)
             sizes.append(len(piece))
         self.frames += len(pieces)
@@ -302,12 +314,8 @@ class Wire:
             if len(hit):
                 buf[hit] ^= self.rng.integers(1, 256, len(hit)).astype(np.uint8)
                 self.bytes_corrupted += len(hit)
-                if self.ascii:
-                    ends = np.cumsum(sizes)
-                    self.frames_damaged += len(np.unique(np.searchsorted(ends, hit,
-                                                                         side='right')))
-                else:
-                    self.frames_damaged += len(np.unique(hit // FRAME_SIZE))
+                ends = np.cumsum(sizes)
+                self.frames_damaged += len(np.unique(np.searchsorted(ends, hit, side='right')))
                 data = buf.tobytes()
         return data
 

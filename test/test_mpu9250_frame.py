@@ -568,3 +568,32 @@ def test_magnetometer_conversion():
     assert adjusted.to_counts((1e-2, 0, 0))[3] & ST2_HOFL
     with pytest.raises(ValueError):
         MagConverter((128, 300, 128))
+
+
+@pytest.mark.parametrize('version', [1, 2])
+def test_virtual_device_wire_versions_and_magnetometer_counts(version):
+    """The virtual sensor's Wire: frame version 2 by default, 1 on request, mag counts in v2."""
+    import argparse
+    from accel_calib_ros.device import add_arguments, Wire
+    args = add_arguments(argparse.ArgumentParser()).parse_args(
+        ['--rate', '1000', '--t0-us', '4294967000'] + (['--frame-version', '1']
+                                                       if version == 1 else []))
+    assert args.frame_version == version
+    wire = Wire(args, np.random.default_rng(1))
+    counts = np.tile(np.array([[1, -2, 16384, 1335, 4, 5, 6]], np.int16), (300, 1))
+    conv = MagConverter((170, 128, 90))
+    mag = [conv.to_counts((20e-6, -5e-6, 42e-6)) if k % 10 == 0 else None for k in range(300)]
+    data = wire.encode(counts, 0, mag if version == 2 else None)
+    parser = FrameParser()
+    out = parser.feed(data) + parser.flush()
+    assert len(out) == 300 and {f.version for f in out} == {version}
+    assert [f.seq for f in out] == [k & (0xFFFF if version == 2 else 0xFF) for k in range(300)]
+    assert parser.lost_frames == 0
+    assert out[0].t_us == 4294967000 and out[1].t_us == 4294967000 + 1000 - 2 ** 32
+    if version == 2:
+        assert [f.mag for f in out] == mag
+        field = conv.to_tesla(out[10].mag)
+        assert field == pytest.approx((20e-6, -5e-6, 42e-6), abs=0.1e-6)
+        assert len(data) == 300 * 25 + 30 * 7
+    else:
+        assert len(data) == 300 * 22
