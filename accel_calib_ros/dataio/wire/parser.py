@@ -28,11 +28,14 @@ QUALITY_WINDOW_BYTES = 22 * QUALITY_WINDOW_FRAMES
 MAX_GAP_S = 2.0
 """Longest gap (device seconds) bridged by the sequence check; longer needs re-locking."""
 TIGHT_US = 20.0
-TIGHT_REL = 0.002
-"""Timing tolerance of an interrupt-stamped firmware: 20 µs + 0.2 % of the interval."""
+TIGHT_REL = 1e-4
+"""Timing tolerance of an interrupt-stamped firmware: 20 µs + 100 ppm of the interval (the
+period is measured over the last 512 frames, so only the sensor clock's short-term wander
+against the microcontroller's remains; a long gap on a bad link gets no wide window for a
+damaged ``t_us`` to fall into)."""
 JITTER_WINDOW = 64
-"""Frames over which the stream's own timing jitter is measured."""
-JITTER_MIN_FRAMES = 16
+"""Accepted frames over which the stream's own timing jitter is measured."""
+JITTER_MIN_FRAMES = 8
 PERIOD_WINDOW = 512
 """Frames over which the sample period is measured (a long base averages the jitter out)."""
 OVERLAP = 4
@@ -82,12 +85,13 @@ class FrameParser:
       valid frames around it). CRC-16 does not need this.
 
     Timing: the tolerance on ``t_us`` is the stream's own precision. An interrupt-stamped
-    firmware (the normal case) keeps it at 20 µs + 0.2 %; a firmware that stamps at read
+    firmware (the normal case) keeps it at 20 µs + 100 ppm; a firmware that stamps at read
     time (host-side jitter) widens it to 1.5 times the jitter measured over the last 64
     frames (the second-largest deviation, so one odd frame does not widen it), up to 45 %
     (version 1, whose ``seq`` is ambiguous beyond) or 95 % (version 2) of a period. A frame
     whose check value passes and that continues ``seq`` is therefore not lost for jitter;
-    frames whose ``t_us`` deviated beyond 20 µs + 0.2 % are counted in ``timing_jitter``.
+    frames whose ``t_us`` deviated beyond 20 µs + 100 ppm are counted in ``timing_jitter``.
+    Until 8 deviations are known (after a re-lock) the window is 45 % of a period.
 
     Resynchronisation: after a failed candidate the scan resumes one byte after its sync,
     inside its own bytes; after an accepted frame it resumes :data:`OVERLAP` bytes before
@@ -267,7 +271,7 @@ class FrameParser:
             return (0, 0.0)
         dt = (frame.t_us - ref.t_us) & 0xFFFFFFFF
         period = self.period_us
-        if period is not None and n <= 4:
+        if period is not None:
             dev = abs(dt - n * period)
             self._devs.append(dev)
             if dev > TIGHT_US + TIGHT_REL * dt:
