@@ -16,16 +16,17 @@ import statistics
 import subprocess
 import time
 
-from accel_calib_ros.dataio.wire import Converter, FrameParser
+from accel_calib_ros.dataio.wire import (Converter, FrameParser, MAG_ABSENT, MAG_AK8963,
+                                         MagConverter)
 from diagnostic_msgs.msg import DiagnosticArray
 from firmware_tools import build_firmware, build_harness, ensure_toolchain
 import pytest
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from ros_helpers import Collector, Processes, stop_node
-from sensor_msgs.msg import Imu, Temperature
+from sensor_msgs.msg import Imu, MagneticField, Temperature
 
 DRIVER = 'accel_calib_ros.nodes.driver'
-IMU, TEMP, DIAG = 'imu/data_raw', 'imu/temperature', '/diagnostics'
+IMU, TEMP, DIAG, MAG = 'imu/data_raw', 'imu/temperature', '/diagnostics', 'imu/mag'
 
 
 @pytest.fixture(scope='module')
@@ -90,9 +91,9 @@ def test_firmware_on_emulated_board(board, tmp_path, quirks, version):
         index, t_sim_us, counts = log[first + k]
         assert frame.counts == counts
         assert frame.seq == (frames[0].seq + k) & mask
-        # 1000 µs steps; a stamp may be late by the interrupt latency (the CPU asleep, in
-        # another interrupt or in a short cli section: a few µs)
-        assert abs((frame.t_us - frames[0].t_us) - (t_sim_us - log[first][1])) <= 3
+        # 1000 µs steps; a stamp may be late by the interrupt latency (the CPU waking up, in
+        # another interrupt such as the 1 kHz tick, or in a short cli section: a few µs)
+        assert abs((frame.t_us - frames[0].t_us) - (t_sim_us - log[first][1])) <= 8
     assert report['bursts_from_0x3b'] >= len(frames)
 
 
@@ -174,6 +175,52 @@ def test_firmware_recovers_from_sensor_and_bus_faults(board, tmp_path, kind):
           f'the fault ended, {last.recoveries} recoveries, {parser.lost_frames} samples lost')
 
 
+def read_mag_log(path):
+    rows = []
+    with open(path) as f:
+        for line in f:
+            v = [int(x) for x in line.split()]
+            rows.append((v[0], v[1], tuple(v[2:])))
+    return rows
+
+
+def test_magnetometer_block_from_the_ak8963(board, tmp_path):
+    """Bypass mode, fuse ROM ASA, 16-bit continuous mode 2: every measurement, once, at 100 Hz."""
+    mag_log = tmp_path / 'mag.log'
+    report, data, log = run_board(board, board['elf'], tmp_path, '--seconds', 2.2,
+                                  '--asa', '170,180,190', '--mag-log', mag_log,
+                                  '--mag-hofl-every', 25)
+    assert report['ak_present'] == 1 and report['ak_cntl1'] == 0x16
+    assert report['INT_PIN_CFG'] == 0x02                     # BYPASS_EN, INT as before
+    parser = FrameParser()
+    frames = parser.feed(data) + parser.flush()
+    info = parser.take_infos()[-1]
+    assert (info.mag_status, info.asa) == (MAG_AK8963, (170, 180, 190))
+    assert parser.crc_errors == 0 and parser.lost_frames == 0
+    measured = read_mag_log(mag_log)
+    with_mag = [f for f in frames if f.mag is not None]
+    span_s = (with_mag[-1].t_us - with_mag[0].t_us) * 1e-6
+    assert (len(with_mag) - 1) / span_s == pytest.approx(100.0, rel=0.01)
+    blocks = [f.mag for f in with_mag]
+    first = [row[2] for row in measured].index(blocks[0])
+    assert blocks == [row[2] for row in measured[first:first + len(blocks)]]  # all, in order
+    assert any(b[3] & 0x08 for b in blocks) and all(b[3] & 0x10 for b in blocks)
+    offset = frames[0].t_us - log[[r[2] for r in log].index(frames[0].counts)][1]
+    for f, (_, t_sim, _) in zip(with_mag, measured[first:]):    # in the frame of the
+        assert abs(f.t_us - (t_sim + offset)) < 1000 + 5           # sample read with it
+
+
+@pytest.mark.parametrize('args', [['--who', '0x70'], ['--mag', 'none']],
+                         ids=['mpu6500', 'mpu9250-without-ak8963'])
+def test_no_magnetometer_no_block(board, tmp_path, args):
+    report, data, _ = run_board(board, board['elf'], tmp_path, '--seconds', 1.0, *args)
+    parser = FrameParser()
+    frames = parser.feed(data) + parser.flush()
+    info = parser.take_infos()[-1]
+    assert len(frames) > 500 and all(f.mag is None for f in frames)
+    assert (info.mag_status, info.asa, info.status) == (MAG_ABSENT, (0, 0, 0), 0)
+
+
 def serial_status(collector):
     for array in reversed(collector.messages[DIAG]):
         for status in array.status:
@@ -188,15 +235,16 @@ def run_chain(board, elf, tmp_path, seconds, baud, *board_args):
     log = tmp_path / 'samples.log'
     procs = Processes(tmp_path)
     qos = QoSProfile(depth=20000, reliability=ReliabilityPolicy.RELIABLE)
-    collector = Collector({IMU: Imu, TEMP: Temperature, DIAG: DiagnosticArray}, qos=qos,
-                          name='hil_collector')
+    collector = Collector({IMU: Imu, TEMP: Temperature, DIAG: DiagnosticArray,
+                           MAG: MagneticField}, qos=qos, name='hil_collector')
     try:
         # Driver first (it retries the missing port quietly), so that the collector is
         # matched with its publishers before the board powers up on the driver's open.
         driver = procs.node(DRIVER, {'port': link, 'baud': baud, 'reconnect_min_s': 0.05,
                                      'reconnect_max_s': 0.1})
         assert collector.spin_until(lambda: collector.node.count_publishers(IMU) > 0 and
-                                    collector.node.count_publishers(TEMP) > 0, 30)
+                                    collector.node.count_publishers(TEMP) > 0 and
+                                    collector.node.count_publishers(MAG) > 0, 30)
         collector.spin(0.5)
         board_proc = subprocess.Popen(
             [board['harness'], '--elf', elf, '--link', link, '--seconds', str(seconds),
@@ -308,3 +356,35 @@ def test_driver_through_firmware_recoveries(board, tmp_path):
     assert status['firmware_last_recovery'] == 'I2C bus stuck (SDA held low)'
     assert status['frame_version'] == '2'
     assert 'recovered the sensor' in driver_log
+
+
+@pytest.mark.ros
+def test_driver_publishes_the_magnetometer(board, tmp_path):
+    """imu/mag through the real driver: the model's field, converted; overflows dropped."""
+    mag_log = tmp_path / 'mag.log'
+    report, msgs, status, driver_log, log = run_chain(
+        board, board['elf'], tmp_path, 4.0, 1_000_000, '--asa', '170,180,190',
+        '--mag-log', str(mag_log), '--mag-hofl-every', '9')
+    measured = read_mag_log(mag_log)
+    conv = MagConverter((170, 180, 190))
+    expected = {}
+    for _, _, block in measured:
+        field = conv.to_tesla(block)
+        if field is not None:
+            expected[block[:3]] = field
+    got = msgs[MAG]
+    assert len(got) >= 250                                   # 100 Hz, minus the overflows
+    imu_stamps = {(m.header.stamp.sec, m.header.stamp.nanosec) for m in msgs[IMU]}
+    for msg in got:
+        f = msg.magnetic_field
+        x, y, z = f.x, f.y, f.z
+        hx = round(y / (0.15e-6 * (170 - 128) / 256 + 0.15e-6))
+        hy = round(x / (0.15e-6 * (180 - 128) / 256 + 0.15e-6))
+        hz = round(-z / (0.15e-6 * (190 - 128) / 256 + 0.15e-6))
+        assert (x, y, z) == pytest.approx(expected[(hx, hy, hz)], abs=1e-15)
+        assert msg.header.frame_id == 'imu_link'
+        assert (msg.header.stamp.sec, msg.header.stamp.nanosec) in imu_stamps
+    overflows = int(status['mag_overflows'])
+    assert overflows >= 30 and int(status['mag_published']) >= len(got)
+    assert int(status['mag_published']) + overflows == int(status['mag_frames'])
+    assert status['magnetometer'] == 'AK8963' and status['mag_asa'] == '170 180 190'

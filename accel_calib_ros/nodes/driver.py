@@ -6,7 +6,14 @@ Reads the binary frames of the interface spec, versions 1 and 2 told apart frame
 ``imu/data_raw`` (sensor_msgs/Imu, REP-145: orientation not reported, identity quaternion
 with ``orientation_covariance[0] = -1``) and ``imu/temperature`` (sensor_msgs/Temperature,
 at ``temperature_rate_hz``, stamped like the sample it comes from), both reliable with
-depth 100. ``/diagnostics`` reports the link at 1 Hz: frame version, frame rate, CRC
+depth 100, and, for frames that carry the AK8963 block (frame version 2, an MPU-9250 behind
+firmware 2.x), ``imu/mag`` (sensor_msgs/MagneticField, tesla, in the accelerometer's frame:
+x = y_mag, y = x_mag, z = −z_mag; 0.15 µT per count times the factory adjustment
+(ASA − 128)/256 + 1 from the info frame; overflow samples (ST2 HOFL) are dropped and
+counted; covariance from ``magnetic_field_stddev``, all zeros = unknown). Until the info
+frame gives the ASA values, magnetometer samples are held back (at most 10 s after the port
+opens; then they are published unadjusted and diagnostics say so). ``/diagnostics`` reports
+the link at 1 Hz: frame version, frame rate, CRC
 errors, rejected candidates, lost samples (``seq`` gaps, cross-checked with ``t_us``),
 timing jitter, the sensor and the firmware's recoveries.
 
@@ -39,13 +46,13 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import Imu, Temperature
+from sensor_msgs.msg import Imu, MagneticField, Temperature
 import serial
 
 from .common import declare_parameters, Param, ParameterProblem, run
 from ..dataio.wire import (ACCEL_LSB_PER_G, AsciiLineParser, ClockMapper, Converter,
                            FRAME_V1_SIZE, FRAME_V2_SIZE, FrameParser, GYRO_LSB_PER_DPS,
-                           temp_counts_range, TEMP_FORMULAS)
+                           MAG_AK8963, MagConverter, temp_counts_range, TEMP_FORMULAS)
 
 NODE_NAME = 'mpu9250_driver'
 QUEUE_DEPTH = 100
@@ -61,6 +68,8 @@ OPEN_GRACE_S = 2.0
 """The watchdog does not reopen a port within this many seconds of opening it (an Arduino
 Uno resets when its port is opened: bootloader and sensor start-up take about 1.5 s)."""
 BITS_PER_BYTE = 10
+MAG_ASA_WAIT_S = 10.0
+"""Magnetometer samples wait this long after opening the port for the info frame's ASA."""
 JITTER_WARN_US = 100.0
 """Device clock jitter above which the driver says once that the stamps carry it."""
 
@@ -83,6 +92,8 @@ PARAMS = [
           'accelerometer noise, m/s² (diagonal covariance; 0 = unknown)', low=0.0),
     Param('angular_velocity_stddev', 0.002,
           'gyroscope noise, rad/s (diagonal covariance; 0 = unknown)', low=0.0),
+    Param('magnetic_field_stddev', 0.0,
+          'magnetometer noise, T (diagonal covariance of imu/mag; 0 = unknown)', low=0.0),
     Param('timestamp', 'device', 'stamps from the device clock mapped to host time (device) '
           'or from the receive time (host)', choices=TIMESTAMPS, read_only=True),
     Param('temperature_rate_hz', 10.0, 'imu/temperature publish rate, Hz (0 = every sample)',
@@ -126,6 +137,10 @@ class Mpu9250Driver(Node):
         self.reconnect_min_s = p['reconnect_min_s']
         self.reconnect_max_s = p['reconnect_max_s']
         self.device_info = None
+        self.mag_published = 0
+        self.mag_overflows = 0
+        self.mag_held = 0
+        self._mag_unadjusted_warned = False
         self._temp_period_s = 0.0
         self._last_temp_stamp = None
         self._apply_settings()
@@ -141,6 +156,7 @@ class Mpu9250Driver(Node):
                          reliability=ReliabilityPolicy.RELIABLE)
         self.imu_pub = self.create_publisher(Imu, 'imu/data_raw', qos)
         self.temp_pub = self.create_publisher(Temperature, 'imu/temperature', qos)
+        self.mag_pub = self.create_publisher(MagneticField, 'imu/mag', qos)
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.connected = False
         self.reconnects = 0
@@ -200,6 +216,12 @@ class Mpu9250Driver(Node):
             accel_cov[k] = p['linear_acceleration_stddev'] ** 2
             gyro_cov[k] = p['angular_velocity_stddev'] ** 2
         self.accel_cov, self.gyro_cov = accel_cov, gyro_cov
+        mag_cov = [0.0] * 9
+        for k in (0, 4, 8):
+            mag_cov[k] = p['magnetic_field_stddev'] ** 2
+        self.mag_cov = mag_cov
+        asa = info.asa if info is not None and info.mag_status == MAG_AK8963 else None
+        self.mag_converter = MagConverter(asa) if asa is not None else None
         rate = p['temperature_rate_hz']
         self._temp_period_s = 1.0 / rate if rate > 0 else 0.0
         self.frame_id = p['frame_id']
@@ -476,6 +498,43 @@ class Mpu9250Driver(Node):
                 self._stop.set()
                 return
             self.published += 1
+            if frame.mag is not None:
+                self._publish_mag(frame.mag, stamp)
+
+    def _publish_mag(self, block, stamp):
+        """Publish one AK8963 sample (held until the ASA is known, dropped on overflow)."""
+        conv = self.mag_converter
+        if conv is None:
+            info = self.device_info
+            if info is not None and info.mag_status == MAG_AK8963:
+                conv = self.mag_converter = MagConverter(info.asa)
+            elif self._opened_at is not None and \
+                    time.monotonic() - self._opened_at < MAG_ASA_WAIT_S and \
+                    (info is None or info.info_version < 2):
+                self.mag_held += 1              # the info frame with the ASA may come
+                return
+            else:
+                conv = MagConverter()           # no ASA from this device: unadjusted
+                if not self._mag_unadjusted_warned:
+                    self._mag_unadjusted_warned = True
+                    self.get_logger().warning(
+                        'magnetometer samples without the AK8963 sensitivity adjustment (no '
+                        'info frame with ASA values): imu/mag is unadjusted, up to ±50 % off')
+        field = conv.to_tesla(block)
+        if field is None:
+            self.mag_overflows += 1             # ST2 HOFL: not a valid measurement
+            return
+        msg = MagneticField()
+        msg.header.stamp = stamp
+        msg.header.frame_id = self.frame_id
+        msg.magnetic_field.x, msg.magnetic_field.y, msg.magnetic_field.z = field
+        msg.magnetic_field_covariance = self.mag_cov
+        try:
+            self.mag_pub.publish(msg)
+        except Exception:               # noqa: B902 - context shut down under us: stop
+            self._stop.set()
+            return
+        self.mag_published += 1
 
     def _stamps(self, frames, host_s):
         if frames[-1].t_us is None:
@@ -616,6 +675,7 @@ class Mpu9250Driver(Node):
                                'firmware_recoveries': info.recoveries,
                                'firmware_i2c_errors': info.i2c_errors,
                                'firmware_last_recovery': info.recovery_text})
+        values.update(self._mag_diagnostics(c))
         if self.timestamp == 'device':
             values['clock_drift_ppm'] = f'{self.clock_mapper.drift_ppm:.1f}'
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
@@ -623,6 +683,24 @@ class Mpu9250Driver(Node):
         array.header.stamp = self.get_clock().now().to_msg()
         array.status = [status]
         return array
+
+    def _mag_diagnostics(self, counters):
+        """Return the magnetometer's diagnostic values."""
+        info = self.device_info
+        conv = self.mag_converter
+        if info is not None and info.info_version >= 2:
+            text = info.mag_text
+            if info.mag_status != MAG_AK8963:
+                text += f' ({info.chip}): no imu/mag'
+        elif counters.get('mag_frames'):
+            text = 'AK8963 block in the frames, no info frame from the firmware'
+        else:
+            text = 'not reported (no info frame of version 2): no imu/mag'
+        return {'magnetometer': text, 'mag_frames': counters.get('mag_frames', 0),
+                'mag_published': self.mag_published, 'mag_overflows': self.mag_overflows,
+                'mag_held_for_asa': self.mag_held,
+                'mag_asa': ' '.join(str(a) for a in conv.asa) if conv is not None
+                else 'unknown'}
 
     def destroy_node(self):
         """Stop the serial thread, close the port, then destroy the node."""

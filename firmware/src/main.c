@@ -99,6 +99,19 @@
 #define REG_PWR_MGMT_1 0x6B
 #define REG_PWR_MGMT_2 0x6C
 #define REG_WHO_AM_I 0x75
+#define INT_PIN_CFG_VALUE 0x02  /* INT active high, push-pull, 50 us pulse; BYPASS_EN */
+
+/* AK8963 (inside the MPU-9250/9255), reached in bypass mode at 0x0C. */
+#define AK_ADDR 0x0C
+#define AK_WIA 0x00
+#define AK_WIA_VALUE 0x48
+#define AK_ST1 0x02
+#define AK_CNTL1 0x0A
+#define AK_ASAX 0x10
+#define AK_MODE_POWER_DOWN 0x00
+#define AK_MODE_FUSE_ROM 0x0F
+#define AK_MODE_16BIT_CONT2 0x16        /* BIT = 1 (16-bit), MODE = 0110 (100 Hz) */
+#define AK_PERIOD_US 10000UL
 
 #define SMPLRT_DIV_VALUE ((1000 / FW_RATE_HZ) - 1)
 #define PERIOD_US (1000000UL / FW_RATE_HZ)
@@ -229,8 +242,9 @@ static uint8_t configure(uint8_t full)
     cfg_write(REG_ACCEL_CONFIG, AFS_SEL << 3);
     if (info.who_am_i != 0x68)          /* 6500/9250/9255: accel DLPF, ACCEL_FCHOICE_B 0 */
         cfg_write(REG_ACCEL_CONFIG2, FW_DLPF_CFG);
-    /* INT: active high, push-pull, 50 us pulse, cleared by reading INT_STATUS. */
-    cfg_write(REG_INT_PIN_CFG, 0x00);
+    /* INT: active high, push-pull, 50 us pulse, cleared by reading INT_STATUS; bypass on,
+     * so that the AK8963 of an MPU-9250 answers on this bus. */
+    cfg_write(REG_INT_PIN_CFG, INT_PIN_CFG_VALUE);
     cfg_write(REG_INT_ENABLE, 0x01);                        /* data ready */
     if (cfg_status != TWI_OK)
         return cfg_status;
@@ -239,13 +253,67 @@ static uint8_t configure(uint8_t full)
     if (!(back[0] == SMPLRT_DIV_VALUE && (back[1] & 0x07) == FW_DLPF_CFG &&
           (back[2] & 0x1B) == (FS_SEL << 3) && (back[3] & 0x18) == (AFS_SEL << 3)))
         return CONFIG_MISMATCH;
-    if ((v = twi_read_regs(MPU_ADDR, REG_INT_ENABLE, back, 1)) != TWI_OK)
+    if ((v = twi_read_regs(MPU_ADDR, REG_INT_PIN_CFG, back, 2)) != TWI_OK)
+        return v;                                           /* INT_PIN_CFG, INT_ENABLE */
+    if ((v = twi_read_regs(MPU_ADDR, REG_PWR_MGMT_1, back + 2, 1)) != TWI_OK)
         return v;
-    if ((v = twi_read_regs(MPU_ADDR, REG_PWR_MGMT_1, back + 1, 1)) != TWI_OK)
-        return v;
-    if (!(back[0] & 0x01) || (back[1] & 0x40))
+    if (back[0] != INT_PIN_CFG_VALUE || !(back[1] & 0x01) || (back[2] & 0x40))
         return CONFIG_MISMATCH;                             /* no data-ready, or asleep */
     return TWI_OK;
+}
+
+/* The AK8963: probe, factory sensitivity adjustment (fuse ROM), 16-bit continuous mode 2.
+ * Sets info.mag and info.asa. A chip without one (MPU-6500/6050) does not answer. */
+static uint8_t mag_present;
+static uint32_t mag_due_us;
+
+static void mag_init(void)
+{
+    uint8_t who = 0;
+    uint8_t mode = 0;
+    mag_present = 0;
+    info.mag = ACF_MAG_ABSENT;
+    if (twi_read_regs(AK_ADDR, AK_WIA, &who, 1) != TWI_OK || who != AK_WIA_VALUE)
+        return;
+    info.mag = ACF_MAG_FAILED;
+    if (twi_write_reg(AK_ADDR, AK_CNTL1, AK_MODE_POWER_DOWN) != TWI_OK)
+        return;
+    _delay_us(100);
+    if (twi_write_reg(AK_ADDR, AK_CNTL1, AK_MODE_FUSE_ROM) != TWI_OK)
+        return;
+    _delay_us(100);
+    if (twi_read_regs(AK_ADDR, AK_ASAX, info.asa, 3) != TWI_OK)
+        return;
+    if (twi_write_reg(AK_ADDR, AK_CNTL1, AK_MODE_POWER_DOWN) != TWI_OK)
+        return;
+    _delay_us(100);
+    if (twi_write_reg(AK_ADDR, AK_CNTL1, AK_MODE_16BIT_CONT2) != TWI_OK ||
+            twi_read_regs(AK_ADDR, AK_CNTL1, &mode, 1) != TWI_OK || mode != AK_MODE_16BIT_CONT2)
+        return;
+    info.mag = ACF_MAG_AK8963;
+    mag_present = 1;
+    mag_due_us = micros();
+}
+
+/* Poll the AK8963 once its next sample is due: ST1, then HXL..HZH and ST2 (reading ST2
+ * ends its read cycle). Return 1 with the 7 bytes HXL..ST2 in out when one was ready. */
+static uint8_t mag_read(uint32_t t_us, uint8_t out[7])
+{
+    uint8_t buf[8];
+    uint8_t i;
+    if (!mag_present || (int32_t)(t_us - mag_due_us) < 0)
+        return 0;
+    if (twi_read_regs(AK_ADDR, AK_ST1, buf, 8) != TWI_OK) {
+        count_i2c_error();
+        mag_due_us = t_us + PERIOD_US;          /* try again with the next sample */
+        return 0;
+    }
+    if (!(buf[0] & 0x01))
+        return 0;                               /* not ready yet: look at the next sample */
+    for (i = 0; i < 7; ++i)
+        out[i] = buf[1 + i];
+    mag_due_us = t_us + AK_PERIOD_US - AK_PERIOD_US / 10;
+    return 1;
 }
 
 /* Find the sensor and configure it; return the info status. */
@@ -258,7 +326,10 @@ static uint8_t detect(void)
             info.who_am_i = who;
             if (!known_chip(who))
                 return ACF_STATUS_UNKNOWN_CHIP;
-            return configure(1) == TWI_OK ? ACF_STATUS_STREAMING : ACF_STATUS_CONFIG_FAILED;
+            if (configure(1) != TWI_OK)
+                return ACF_STATUS_CONFIG_FAILED;
+            mag_init();
+            return ACF_STATUS_STREAMING;
         }
         _delay_ms(20);
     }
@@ -285,6 +356,8 @@ static void recover(uint8_t cause)
     if (cause == ACF_CAUSE_DRDY && !recovery_failed)
         ++silent_recoveries;
     st = configure(silent_recoveries > FULL_RESET_AFTER);
+    if (st == TWI_OK && info.mag != ACF_MAG_ABSENT)
+        mag_init();                     /* the AK8963 may have lost its mode as well */
     if (st != TWI_OK) {
         count_i2c_error();
         if (st != CONFIG_MISMATCH)      /* the bus is the trouble, whatever noticed it */
@@ -316,8 +389,9 @@ static void start_streaming(void)
 static void handle_sample(uint8_t count, uint32_t t_us)
 {
     uint8_t regs[14];
+    uint8_t mag[7];
     uint8_t frame[ACF_FRAME_MAX_SIZE];
-    uint8_t st, n;
+    uint8_t st, n, has_mag;
     uint16_t advance;
     drdy_seen_us = t_us;
     /* INT_STATUS first (clears the interrupt), then the 14-byte burst. */
@@ -343,9 +417,11 @@ static void handle_sample(uint8_t count, uint32_t t_us)
     seq = (uint16_t)(seq + advance);
     good_t_us = t_us;
     silent_recoveries = 0;
+    has_mag = mag_read(t_us, mag);      /* sent with the sensor sample read with it */
 #if FW_FRAME_VERSION == 2
-    n = acf_encode_data_v2(frame, seq, t_us, regs, 0);
+    n = acf_encode_data_v2(frame, seq, t_us, regs, has_mag ? mag : 0);
 #else
+    (void)has_mag;                      /* version 1 has no room for it */
     acf_encode_data(frame, (uint8_t)seq, t_us, regs);
     n = ACF_FRAME_SIZE;
 #endif
@@ -369,7 +445,6 @@ int main(void)
     info.fw_major = FW_MAJOR;
     info.fw_minor = FW_MINOR;
     info.frame_version = FW_FRAME_VERSION;
-    info.mag = ACF_MAG_ABSENT;
     info.status = detect();
     send_info();
     if (info.status == ACF_STATUS_STREAMING)

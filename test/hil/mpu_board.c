@@ -23,6 +23,15 @@
  * --link) or a file. simavr 1.6 quirks are repaired here: TWINT is made to clear when
  * written with 1, and the status after SLA+W reads 0x18/0x20 (not 0x28/0x30).
  *
+ * The MPU-9250/9255 carries an AK8963 magnetometer (address 0x0C, reachable once the
+ * firmware sets INT_PIN_CFG.BYPASS_EN): WIA 0x48, ST1 (DRDY, DOR), HXL..HZH little-endian,
+ * ST2 (HOFL, BITM; reading it ends the read cycle and clears DRDY), CNTL1 (mode, BIT),
+ * CNTL2 (SRST) and the fuse ROM ASA values (readable in fuse ROM access mode only). In
+ * continuous mode 2 it measures every 10 ms a field that wanders slowly (random walk), or
+ * with --mag-hofl-every N an overflow (HOFL) every Nth measurement. Its measurements are
+ * logged with --mag-log FILE ("index t_us hx hy hz st2"). --mag none removes it; the
+ * MPU-6500/6050 (--who 0x70/0x68) have none.
+ *
  * Faults (--fault KIND:START_MS[:DURATION_MS], up to 8, simulated milliseconds):
  *   int-silent  the sensor keeps sampling but does not drive INT for the duration;
  *   brownout    the sensor's registers fall back to their power-on state (INT_ENABLE 0,
@@ -38,7 +47,8 @@
  *        [--who 0x71 | --who none] [--seed N] [--samples FILE] [--log FILE] [--fast]
  *        [--wait-open S]   (start the board only once the pty is opened, S s at most)
  *        [--raw-twi]       (keep simavr 1.6's TWI quirks, to check the firmware copes)
- *        [--fault KIND:START_MS[:DURATION_MS]]...
+ *        [--fault KIND:START_MS[:DURATION_MS]]... [--mag none] [--asa X,Y,Z]
+ *        [--mag-log FILE] [--mag-hofl-every N]
  * On exit (after S simulated seconds, or SIGINT/SIGTERM) one JSON line on stdout reports
  * what the firmware configured and how much it sent, the faults and the SCL pulses.
  */
@@ -64,6 +74,7 @@
 
 #define F_CPU_HZ 16000000u
 #define MPU_ADDR 0x68
+#define AK_ADDR 0x0C
 /* ATmega328P data addresses */
 #define A_TWBR 0xB8
 #define A_TWSR 0xB9
@@ -85,6 +96,7 @@ static volatile sig_atomic_t stop_requested;
 static uint8_t reg[128];
 static int who = 0x71;            /* -1: no device answers at 0x68 */
 static int selected, reg_index_pending, ptr;
+static int selected_ak;
 static int addr_phase_write;      /* the last TWI byte sent was SLA+W */
 static avr_irq_t *twi_in, *int_pin;
 static int pin_level;
@@ -185,6 +197,85 @@ static void sensor_write(uint8_t value)
     ptr = (ptr + 1) & 0x7F;
 }
 
+/* ---- AK8963 model ----------------------------------------------------------------- */
+static int ak_present = 1;
+static uint8_t ak_reg[0x13];
+static uint8_t ak_asa[3] = {176, 177, 165};
+static int ak_ptr, ak_index_pending;
+static int16_t ak_field[3] = {120, -240, 310};   /* counts, about 18, -36, 46 uT */
+static uint64_t mag_samples;
+static unsigned mag_hofl_every;
+static FILE *mag_log;
+
+static void ak_reset(void)
+{
+    memset(ak_reg, 0, sizeof ak_reg);
+    ak_reg[0x00] = 0x48;                        /* WIA */
+    ak_reg[0x01] = 0x9A;                        /* INFO */
+}
+
+static int ak_visible(void)
+{
+    return ak_present && (reg[0x37] & 0x02);    /* behind the MPU's bypass switch */
+}
+
+static uint8_t ak_read(void)
+{
+    uint8_t r = (uint8_t)ak_ptr;
+    uint8_t v = 0;
+    if (r < sizeof ak_reg)
+        v = ak_reg[r];
+    if (r >= 0x10 && r <= 0x12)                 /* fuse ROM: only in fuse access mode */
+        v = (ak_reg[0x0A] & 0x0F) == 0x0F ? ak_asa[r - 0x10] : 0;
+    if (r == 0x09)                              /* ST2 read: the read cycle is over */
+        ak_reg[0x02] &= (uint8_t)~0x03;
+    ak_ptr = (ak_ptr + 1) % 0x13;
+    return v;
+}
+
+static void ak_write(uint8_t value)
+{
+    uint8_t r = (uint8_t)ak_ptr;
+    if (r == 0x0A)
+        ak_reg[0x0A] = value & 0x1F;
+    else if (r == 0x0B && (value & 0x01))
+        ak_reset();                             /* CNTL2.SRST */
+    else if (r == 0x0C)
+        ak_reg[0x0C] = value & 0x40;
+    ak_ptr = (ak_ptr + 1) % 0x13;
+}
+
+static avr_cycle_count_t ak_tick(avr_t *a, avr_cycle_count_t when, void *param)
+{
+    int i;
+    int16_t h[3];
+    uint8_t st2;
+    (void)param;
+    if (ak_present && (ak_reg[0x0A] & 0x0F) == 0x06) {      /* continuous mode 2, 100 Hz */
+        for (i = 0; i < 3; ++i) {
+            ak_field[i] = (int16_t)(ak_field[i] + (int)(xorshift() % 41) - 20);
+            h[i] = ak_field[i];
+        }
+        st2 = (ak_reg[0x0A] & 0x10) ? 0x10 : 0x00;           /* BITM follows CNTL1.BIT */
+        if (mag_hofl_every && (mag_samples + 1) % mag_hofl_every == 0)
+            st2 |= 0x08;                                     /* HOFL */
+        for (i = 0; i < 3; ++i) {
+            ak_reg[0x03 + 2 * i] = (uint8_t)((uint16_t)h[i] & 0xFF);
+            ak_reg[0x04 + 2 * i] = (uint8_t)((uint16_t)h[i] >> 8);
+        }
+        ak_reg[0x09] = st2;
+        if (ak_reg[0x02] & 0x01)
+            ak_reg[0x02] |= 0x02;                            /* DOR: the last was not read */
+        ak_reg[0x02] |= 0x01;                                /* DRDY */
+        if (mag_log)
+            fprintf(mag_log, "%llu %llu %d %d %d %u\n", (unsigned long long)mag_samples,
+                    (unsigned long long)(a->cycle / (F_CPU_HZ / 1000000u)), h[0], h[1], h[2],
+                    st2);
+        ++mag_samples;
+    }
+    return when + F_CPU_HZ / 100u;
+}
+
 /* Internal rate 1 kHz when 0 < DLPF_CFG < 7 (and FCHOICE_B = 0), else 8 kHz. */
 static uint32_t sample_rate_hz(void)
 {
@@ -248,12 +339,18 @@ static void twi_hook(avr_irq_t *irq, uint32_t value, void *param)
     (void)irq; (void)param;
     m.u.v = value;
     if (m.u.twi.msg & TWI_COND_STOP)
-        selected = 0;
+        selected = selected_ak = 0;
     if (m.u.twi.msg & TWI_COND_START) {
-        selected = 0;
+        selected = selected_ak = 0;
         addr_phase_write = !(m.u.twi.addr & 1);
         if (fault_active(F_NACK) || fault_active(F_SDA_STUCK))
             return;                                 /* nobody acknowledges */
+        if ((m.u.twi.addr >> 1) == AK_ADDR && ak_visible()) {
+            selected = selected_ak = m.u.twi.addr;
+            ak_index_pending = !(m.u.twi.addr & 1);
+            avr_raise_irq(twi_in, avr_twi_irq_msg(TWI_COND_ACK, selected, 1));
+            return;
+        }
         if (who >= 0 && (m.u.twi.addr >> 1) == MPU_ADDR) {
             selected = m.u.twi.addr;
             reg_index_pending = !(m.u.twi.addr & 1);
@@ -265,6 +362,21 @@ static void twi_hook(avr_irq_t *irq, uint32_t value, void *param)
     }
     if (!selected)
         return;
+    if (selected_ak) {
+        if (m.u.twi.msg & TWI_COND_WRITE) {
+            addr_phase_write = 0;
+            avr_raise_irq(twi_in, avr_twi_irq_msg(TWI_COND_ACK, selected, 1));
+            if (ak_index_pending) {
+                ak_ptr = m.u.twi.data % 0x13;
+                ak_index_pending = 0;
+            } else {
+                ak_write(m.u.twi.data);
+            }
+        }
+        if (m.u.twi.msg & TWI_COND_READ)
+            avr_raise_irq(twi_in, avr_twi_irq_msg(TWI_COND_READ, selected, ak_read()));
+        return;
+    }
     if (m.u.twi.msg & TWI_COND_WRITE) {
         addr_phase_write = 0;
         avr_raise_irq(twi_in, avr_twi_irq_msg(TWI_COND_ACK, selected, 1));
@@ -484,6 +596,19 @@ int main(int argc, char **argv)
         else if (!strcmp(a, "--samples")) samples = v;
         else if (!strcmp(a, "--log")) log_path = v;
         else if (!strcmp(a, "--wait-open")) wait_open = atof(v);
+        else if (!strcmp(a, "--mag")) ak_present = strcmp(v, "none") != 0;
+        else if (!strcmp(a, "--mag-log")) {
+            if (!(mag_log = fopen(v, "w"))) { perror(v); return 2; }
+        }
+        else if (!strcmp(a, "--mag-hofl-every")) mag_hofl_every = (unsigned)atoi(v);
+        else if (!strcmp(a, "--asa")) {
+            unsigned x, y, z;
+            if (sscanf(v, "%u,%u,%u", &x, &y, &z) != 3 || x > 255 || y > 255 || z > 255) {
+                fprintf(stderr, "mpu_board: bad --asa %s (X,Y,Z, 0..255 each)\n", v);
+                return 2;
+            }
+            ak_asa[0] = (uint8_t)x; ak_asa[1] = (uint8_t)y; ak_asa[2] = (uint8_t)z;
+        }
         else if (!strcmp(a, "--fault")) {
             if (!parse_fault(v)) {
                 fprintf(stderr, "mpu_board: bad --fault %s (KIND:START_MS[:DURATION_MS], KIND "
@@ -515,6 +640,9 @@ int main(int argc, char **argv)
         fclose(f);
     }
     temp_count = (int16_t)(who == 0x68 ? -3920 : 1335);     /* about 25 degC */
+    if (who != 0x71 && who != 0x73)
+        ak_present = 0;                                     /* MPU-6500/6050: no AK8963 */
+    ak_reset();
     if (log_path && !(log_file = fopen(log_path, "w"))) { perror(log_path); return 2; }
     obuf = malloc(ocap);
 
@@ -557,6 +685,7 @@ int main(int argc, char **argv)
     pin_level = !active_level();
     avr_raise_irq(int_pin, pin_level);
     avr_cycle_timer_register_usec(avr, 1000, sample_tick, NULL);
+    avr_cycle_timer_register_usec(avr, 10000, ak_tick, NULL);
 
     signal(SIGINT, on_signal);
     signal(SIGTERM, on_signal);
@@ -617,7 +746,8 @@ int main(int argc, char **argv)
                "\"who_am_i\": %d, \"SMPLRT_DIV\": %u, \"CONFIG\": %u, \"GYRO_CONFIG\": %u, "
                "\"ACCEL_CONFIG\": %u, \"ACCEL_CONFIG2\": %u, \"INT_PIN_CFG\": %u, "
                "\"INT_ENABLE\": %u, \"PWR_MGMT_1\": %u, \"scl_pulses\": %llu, "
-               "\"scl_pulses_in_faults\": %llu, \"faults\": [",
+               "\"scl_pulses_in_faults\": %llu, \"ak_present\": %d, \"ak_cntl1\": %u, "
+               "\"mag_samples\": %llu, \"faults\": [",
                state == cpu_Crashed ? "crashed" : (state == cpu_Done ? "done" : "running"),
                sim_s, wall_s, (unsigned long long)samples_made, last_rate_hz,
                (unsigned long long)uart_bytes, (unsigned long long)uart_dropped, olen, baud,
@@ -625,7 +755,8 @@ int main(int argc, char **argv)
                (unsigned long long)bursts_0x3b, (unsigned long long)twi_writes, who,
                reg[0x19], reg[0x1A], reg[0x1B], reg[0x1C], reg[0x1D], reg[0x37], reg[0x38],
                reg[0x6B], (unsigned long long)scl_pulses,
-               (unsigned long long)scl_pulses_in_faults);
+               (unsigned long long)scl_pulses_in_faults, ak_present, ak_reg[0x0A],
+               (unsigned long long)mag_samples);
         for (i = 0; i < n_faults; ++i)
             printf("%s{\"kind\": \"%s\", \"start_us\": %llu, \"end_us\": %llu, "
                    "\"released_us\": %llu, \"active\": %d}", i ? ", " : "",
@@ -636,6 +767,8 @@ int main(int argc, char **argv)
     }
     if (log_file)
         fclose(log_file);
+    if (mag_log)
+        fclose(mag_log);
     if (link)
         unlink(link);
     return state == cpu_Crashed ? 1 : 0;
