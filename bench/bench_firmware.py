@@ -5,10 +5,10 @@ Builds the firmware (frame version 2 at 1 MBd, version 1 at 1 MBd, version 2 at 
 baud) and the board (test/hil/mpu_board.c; needs the Debian packages of docs/firmware.md),
 runs each for ``--seconds`` simulated seconds as fast as the host allows, parses the UART
 with the driver's parser and prints flash/RAM used, frames per simulated second, lost
-samples (seq gaps) and CRC errors. Then it injects each fault of the board once (INT
-silent for 50 ms, the sensor's registers lost, I2C not acknowledged for 40 ms, SDA held low
-for 30 ms) and prints the outage, how long after the fault's end the stream resumed, the
-recoveries and the samples counted as lost::
+samples (seq gaps), CRC errors and magnetometer blocks per second. Then it injects each
+fault of the board once (INT silent for 50 ms, the sensor's registers lost, I2C not
+acknowledged for 40 ms, SDA held low for 30 ms) and prints the outage, how long after the
+fault's end the stream resumed, the recoveries and the samples counted as lost::
 
     python bench/bench_firmware.py [--seconds 10]
 """
@@ -66,7 +66,8 @@ def main():
               f'lost samples {parser.lost_frames} ({100.0 * parser.lost_frames / samples:.1f} %),'
               f' CRC errors {parser.crc_errors}; emulated UART {report["baud"]:.0f} baud, '
               f'SCL {report["scl_hz"] / 1e3:.0f} kHz; {report["wall_seconds"]:.2f} s of wall '
-              'time')
+              f'time; AK8963 blocks {sum(f.mag is not None for f in frames) / span_s:.1f}/s '
+              f'of {report["mag_samples"] / report["sim_seconds"]:.1f} measurements/s')
         status |= parser.crc_errors != 0
     print('recovery (v2 1 MBd, faults at 1.0 s of simulated time):')
     for spec in FAULTS:
