@@ -1,15 +1,16 @@
 """
 Benchmark: the MPU9250 frame parser and clock mapper, CPU time per frame.
 
-Prints frames parsed per second of CPU time (``time.process_time``) for a clean
-stream and for one with 2 % of its bytes flipped, at two read sizes (64 bytes is a
-typical USB-serial read at 200 Hz, 4096 a backlog), the number of intact frames the
-parser lost at 2 % corruption (must be 0), and the cost of the ClockMapper and of the
-ASCII line parser. Then, over ``--garbage-frames`` frames (default 10⁶) at 1 kHz, for
-a stream of uniformly random axes (no plausibility check can help there) and for a
+Prints frames parsed per second of CPU time (``time.process_time``), for frame versions 1
+and 2, for a clean stream and for one with 2 % of its bytes flipped, at two read sizes
+(64 bytes is a typical USB-serial read at 200 Hz, 4096 a backlog), the number of intact
+frames the parser lost at 2 % corruption (must be 0), and the cost of the ClockMapper and
+of the ASCII line parser. Then, over ``--garbage-frames`` frames (default 10⁶) at 1 kHz,
+for a stream of uniformly random axes (no plausibility check can help there) and for a
 sensor-like stream (gravity plus noise), with 2 % and 20 % of the bytes XORed with a
-random non-zero byte: garbage frames published per 10⁶ (a published frame that was not
-sent) and intact frames lost::
+random non-zero byte, for both frame versions: garbage frames published per 10⁶ (a
+published frame that was not sent) and intact frames lost. bench/bench_reliability.py has
+the other kinds of damage (drops, insertions, bursts)::
 
     python bench/bench_driver.py [--frames 100000] [--garbage-frames 1000000]
 """
@@ -18,26 +19,31 @@ import argparse
 import sys
 import time
 
-from accel_calib_ros.dataio.mpu9250_frame import (AsciiLineParser, ClockMapper, Converter,
-                                                  encode_ascii_line, encode_frame, FRAME_SIZE,
-                                                  FrameParser, RawFrame, SPIKE_COUNTS)
+from accel_calib_ros.dataio.wire import (AsciiLineParser, ClockMapper, Converter, encode,
+                                         encode_ascii_line, FRAME_SIZE, FRAME_V2_SIZE,
+                                         FrameParser, RawFrame, SPIKE_COUNTS)
 import numpy as np
 
 
-def make_stream(n, rng):
+def frame(k, t_us, counts, version):
+    if version == 1:
+        return RawFrame(k & 0xFF, t_us & 0xFFFFFFFF, tuple(counts))
+    return RawFrame(k & 0xFFFF, t_us & 0xFFFFFFFF, tuple(counts), None, 2)
+
+
+def make_stream(n, rng, version=1):
     counts = rng.integers(-32768, 32768, (n, 7))
     counts[:, 3] = 1335 + rng.integers(-30, 31, n)              # a plausible 25 °C
-    counts = counts.tolist()
-    frames = [RawFrame(k & 0xFF, (4_290_000_000 + 5000 * k) & 0xFFFFFFFF, tuple(c))
-              for k, c in enumerate(counts)]
-    return frames, b''.join(encode_frame(*f) for f in frames)
+    frames = [frame(k, 4_290_000_000 + 5000 * k, c, version)
+              for k, c in enumerate(counts.tolist())]
+    return frames, b''.join(encode(f) for f in frames)
 
 
-def corrupt(data, fraction, rng):
+def corrupt(data, fraction, rng, size=FRAME_SIZE):
     buf = np.frombuffer(data, np.uint8).copy()
     hit = np.flatnonzero(rng.random(len(buf)) < fraction)
     buf[hit] ^= rng.integers(1, 256, len(hit)).astype(np.uint8)
-    return buf.tobytes(), set((hit // FRAME_SIZE).tolist())
+    return buf.tobytes(), set((hit // size).tolist())
 
 
 def parse(data, chunk, **options):
@@ -50,7 +56,7 @@ def parse(data, chunk, **options):
     return out, parser, time.process_time() - start
 
 
-def make_1khz_stream(n, rng, kind):
+def make_1khz_stream(n, rng, kind, version=1):
     """Frames at 1 kHz: ``uniform`` random axes or ``sensor`` (1 g on z plus noise)."""
     if kind == 'uniform':
         counts = rng.integers(-32768, 32768, (n, 7))
@@ -59,20 +65,21 @@ def make_1khz_stream(n, rng, kind):
         counts[:, :3] = np.round(rng.normal(0, 70, (n, 3)) + [0, 0, 16384])
         counts[:, 4:] = np.round(rng.normal(0, 15, (n, 3)))
     counts[:, 3] = 1335 + rng.integers(-30, 31, n)              # about 25 °C
-    frames = [RawFrame(k & 0xFF, (4_290_000_000 + 1000 * k) & 0xFFFFFFFF, tuple(c))
+    frames = [frame(k, 4_290_000_000 + 1000 * k, c, version)
               for k, c in enumerate(counts.tolist())]
-    return frames, b''.join(encode_frame(*f) for f in frames)
+    return frames, b''.join(encode(f) for f in frames)
 
 
 def garbage_table(n, rng, spike=False):
     """Print garbage per 10⁶ and intact frames lost at 2 % and 20 % byte corruption."""
     print(f'garbage test: {n} frames per cell, bytes XORed with a random non-zero byte')
     worst_lost_2 = 0
-    for kind in ('uniform', 'sensor'):
-        frames, clean = make_1khz_stream(n, rng, kind)
+    for version, kind in ((1, 'uniform'), (1, 'sensor'), (2, 'uniform'), (2, 'sensor')):
+        frames, clean = make_1khz_stream(n, rng, kind, version)
         sent = set(frames)
+        size = FRAME_SIZE if version == 1 else FRAME_V2_SIZE
         for fraction in (0.02, 0.20):
-            dirty, damaged = corrupt(clean, fraction, rng)
+            dirty, damaged = corrupt(clean, fraction, rng, size)
             out, parser, cpu = parse(dirty, 4096,
                                      spike_counts=SPIKE_COUNTS if spike else None)
             got = set(out)
@@ -80,7 +87,8 @@ def garbage_table(n, rng, spike=False):
             lost = sum(1 for k, f in enumerate(frames) if k not in damaged and f not in got)
             if fraction == 0.02:
                 worst_lost_2 = max(worst_lost_2, lost)
-            print(f'  {kind:8s} {fraction * 100:4.0f} %: garbage {garbage * 1e6 / n:8.1f} per 10⁶'
+            print(f'  v{version} {kind:8s} {fraction * 100:4.0f} %: garbage '
+                  f'{garbage * 1e6 / n:8.1f} per 10⁶'
                   f'  intact frames lost {lost} of {n - len(damaged)}'
                   f'  (published {len(out)}, rejected {parser.rejected}, {n / cpu:,.0f} frames/s'
                   ' CPU)')
@@ -95,10 +103,25 @@ def main():
                     help='garbage test with the optional spike check (band-limited signals)')
     args = ap.parse_args()
     rng = np.random.default_rng(0)
-    frames, clean = make_stream(args.frames, rng)
-    dirty, damaged = corrupt(clean, 0.02, rng)
+    status = 0
+    for version in (1, 2):
+        status |= cpu_table(args.frames, rng, version)
+    frames, _ = make_stream(args.frames, rng)
+    status |= other_costs(frames, rng)
+    if args.garbage_frames > 0:
+        status |= garbage_table(args.garbage_frames, rng, args.spike) != 0
+    if status:
+        print('bench_driver: FAILED (frames lost)', file=sys.stderr)
+    return status
+
+
+def cpu_table(n, rng, version):
+    """Print parser CPU time for one frame version; return 1 when an intact frame was lost."""
+    frames, clean = make_stream(n, rng, version)
+    size = FRAME_SIZE if version == 1 else FRAME_V2_SIZE
+    dirty, damaged = corrupt(clean, 0.02, rng, size)
     intact = [f for k, f in enumerate(frames) if k not in damaged]
-    print(f'{args.frames} frames of {FRAME_SIZE} bytes; '
+    print(f'version {version}: {n} frames of {size} bytes; '
           f'2 % corruption damages {len(damaged)} of them')
     status = 0
     for name, data in (('clean', clean), ('2 % corrupt', dirty)):
@@ -112,12 +135,16 @@ def main():
                 lost = sum(f not in got for f in intact)
                 bogus = len(got - set(frames))
                 line += f'\n{"":16s}lost valid frames: {lost}; corrupted frames passing ' \
-                        f'CRC-8: {bogus}'
+                        f'the CRC and every check: {bogus}'
                 status |= lost != 0
             elif len(out) != len(frames):
                 status = 1
             print(line)
+    return status
 
+
+def other_costs(frames, rng):
+    """Print the cost of the clock mapper, the converter and the ASCII parser."""
     mapper = ClockMapper()
     conv = Converter()
     host = 1.7e9 + np.arange(len(frames)) / 200.0 + rng.uniform(0, 0.004, len(frames))
@@ -136,11 +163,7 @@ def main():
         n += len(ascii_parser.feed(text[k:k + 256]))
     cpu = time.process_time() - start
     print(f'  ASCII lines: {n / cpu:10,.0f} lines/s CPU (bad lines {ascii_parser.bad_lines})')
-    if args.garbage_frames > 0:
-        status |= garbage_table(args.garbage_frames, rng, args.spike) != 0
-    if status:
-        print('bench_driver: FAILED (frames lost)', file=sys.stderr)
-    return status
+    return 0
 
 
 if __name__ == '__main__':

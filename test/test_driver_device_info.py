@@ -6,10 +6,12 @@ says; the node runs in its own rclpy Context with an executor spun by the test.
 """
 
 import os
+import threading
 import time
 import tty
 
-from accel_calib_ros.dataio.mpu9250_frame import encode_frame, encode_info, InfoFrame
+from accel_calib_ros.dataio.wire import (encode_frame, encode_frame_v2, encode_info,
+                                         encode_info_v2, InfoFrame, MAG_AK8963)
 from accel_calib_ros.nodes.driver import build_node
 from diagnostic_msgs.msg import DiagnosticArray
 import pytest
@@ -17,7 +19,7 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import Imu, Temperature
+from sensor_msgs.msg import Imu, MagneticField, Temperature
 
 pytestmark = pytest.mark.ros
 
@@ -38,8 +40,9 @@ class Rig:
         self.logs = []
         self.sub = rclpy.create_node('info_sub', context=self.context)
         qos = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE)
-        self.imu, self.temp, self.diag = [], [], []
+        self.imu, self.temp, self.diag, self.mag = [], [], [], []
         self.sub.create_subscription(Imu, 'imu/data_raw', self.imu.append, qos)
+        self.sub.create_subscription(MagneticField, 'imu/mag', self.mag.append, qos)
         self.sub.create_subscription(Temperature, 'imu/temperature', self.temp.append, qos)
         self.sub.create_subscription(DiagnosticArray, '/diagnostics', self.diag.append, 10)
         self.executor = SingleThreadedExecutor(context=self.context)
@@ -175,3 +178,101 @@ def test_reader_survives_an_exception_and_reports_it(rigs):
     assert rig.spin_until(lambda: len(rig.imu) >= 150, 10)      # the reader restarted
     assert rig.spin_until(lambda: rig.status()[1] is not None
                           and rig.status()[1]['reader_errors'] == '1', 5)
+
+
+def test_info_v2_recoveries_and_frame_version_in_diagnostics(rigs):
+    """Firmware 2.x: frame version 2 and its recovery counters reach /diagnostics."""
+    rig = rigs()
+    time.sleep(0.3)
+    info = InfoFrame(0, 0x71, 4, 500, 1000, 1, 1_000_000, (2, 0), frame_version=2,
+                     mag_status=0, info_version=2)
+    rig.write(encode_info_v2(info))
+    rig.write(b''.join(encode_frame_v2(k, 1000 * k, (0, 0, 8192, 1335, 0, 0, 0))
+                       for k in range(200)))
+    assert rig.spin_until(lambda: len(rig.imu) >= 199, 10)
+    assert rig.imu[-1].linear_acceleration.z == pytest.approx(9.80665)       # ±4 g
+    rig.write(encode_info_v2(info._replace(recoveries=2, i2c_errors=9, last_recovery=4)))
+
+    def stream():                                           # 40 samples lost in the recovery
+        for k in range(200, 2200, 10):
+            rig.write(b''.join(encode_frame_v2(j + 40, 1000 * j + 40_000,
+                                               (0, 0, 8192, 1335, 0, 0, 0))
+                               for j in range(k, k + 10)))
+            time.sleep(0.01)
+    writer = threading.Thread(target=stream, daemon=True)
+    writer.start()
+
+    def reported():
+        status, values = rig.status()
+        return values is not None and 'recovered' in status.message
+    assert rig.spin_until(reported, 5)
+    writer.join(5)
+    status, values = rig.status()
+    assert values['frame_version'] == '2' and values['frames_v2'] == values['frames']
+    assert values['firmware_last_recovery'] == 'I2C bus stuck (SDA held low)'
+    assert values['firmware_i2c_errors'] == '9' and values['lost_frames'] == '40'
+    assert status.level == b'\x01' and 'recovered the sensor 2 times' in status.message
+
+
+def mag_frames(start, n, every=10, hofl_at=()):
+    """Frame-v2 bytes at 1 kHz with an AK8963 block every ``every`` frames."""
+    out = []
+    for k in range(start, start + n):
+        mag = None
+        if k % every == 0:
+            mag = (100 + k, -200, 300 - k, 0x10 | (0x08 if k in hofl_at else 0))
+        out.append(encode_frame_v2(k, 1000 * k, (0, 0, 16384, 1335, 0, 0, 0), mag))
+    return b''.join(out)
+
+
+def test_magnetometer_published_in_tesla_in_the_accelerometer_frame(rigs):
+    """imu/mag: ASA from the info frame, axes swapped to the accelerometer's, HOFL dropped."""
+    rig = rigs(magnetic_field_stddev=0.4e-6, frame_id='imu')
+    time.sleep(0.3)
+    rig.write(mag_frames(0, 30))                       # before the info frame: held back
+    assert rig.spin_until(lambda: len(rig.imu) >= 29, 10)
+    assert rig.mag == [] and rig.node.mag_held >= 2
+    asa = (176, 128, 64)                               # factors 1.1875, 1.0, 0.75
+    rig.write(encode_info_v2(InfoFrame(0, 0x71, 2, 250, 1000, 1, 1_000_000, (2, 0), 2,
+                                       MAG_AK8963, asa, info_version=2)))
+    rig.write(mag_frames(30, 300, hofl_at=(100, 200)))
+    assert rig.spin_until(lambda: len(rig.mag) >= 28, 10)
+    rig.spin_until(lambda: False, 0.3)
+    assert len(rig.mag) == 28 and rig.node.mag_overflows == 2     # 30 blocks, 2 overflows
+    by_stamp = {(m.header.stamp.sec, m.header.stamp.nanosec): m for m in rig.imu}
+    ks = [k for k in range(30, 330, 10) if k not in (100, 200)]
+    for k, msg in zip(ks, rig.mag):
+        assert (msg.header.stamp.sec, msg.header.stamp.nanosec) in by_stamp  # its sample's
+        assert msg.header.frame_id == 'imu'
+        hx, hy, hz = 100 + k, -200, 300 - k
+        assert msg.magnetic_field.x == pytest.approx(hy * 0.15e-6 * 1.0)     # x = y_mag
+        assert msg.magnetic_field.y == pytest.approx(hx * 0.15e-6 * 1.1875)  # y = x_mag
+        assert msg.magnetic_field.z == pytest.approx(-hz * 0.15e-6 * 0.75)   # z = -z_mag
+        assert msg.magnetic_field_covariance[0] == pytest.approx(0.16e-12)
+        assert msg.magnetic_field_covariance[1] == 0.0
+
+    def reported():
+        values = rig.status()[1]
+        return values is not None and values.get('mag_overflows') == '2'
+    assert rig.spin_until(reported, 5)
+    values = rig.status()[1]
+    assert values['magnetometer'] == 'AK8963' and values['mag_asa'] == '176 128 64'
+    assert values['mag_published'] == '28'
+
+
+def test_no_magnetometer_on_an_mpu6500(rigs):
+    rig = rigs()
+    time.sleep(0.3)
+    rig.write(encode_info_v2(InfoFrame(0, 0x70, 2, 250, 1000, 1, 1_000_000, (2, 0), 2, 0,
+                                       info_version=2)))
+    rig.write(b''.join(encode_frame_v2(k, 1000 * k, (0, 0, 16384, 1335, 0, 0, 0))
+                       for k in range(100)))
+    assert rig.spin_until(lambda: len(rig.imu) >= 99, 10)
+
+    def reported():
+        values = rig.status()[1]
+        return values is not None and 'chip' in values
+    assert rig.spin_until(reported, 5)
+    values = rig.status()[1]
+    assert values['magnetometer'] == 'absent (no AK8963 answers) (MPU-6500): no imu/mag'
+    assert rig.mag == [] and values['mag_frames'] == '0'

@@ -2,8 +2,9 @@
 
 import subprocess
 
-from accel_calib_ros.dataio.mpu9250_frame import (decode_info, encode_frame, encode_info,
-                                                  FrameParser, InfoFrame)
+from accel_calib_ros.dataio.wire import (decode_frame, decode_info, encode_frame,
+                                         encode_frame_v2, encode_info, encode_info_v2,
+                                         FrameParser, InfoFrame, RawFrame)
 from firmware_tools import build_host_encoder, ensure_toolchain
 import numpy as np
 import pytest
@@ -68,3 +69,65 @@ def test_info_frames_byte_identical(encoder):
     parser = FrameParser()
     assert parser.feed(b''.join(got[:2])) == []
     assert parser.take_infos() == infos[:2] and parser.take_infos() == []
+
+
+def test_v2_data_frames_byte_identical(encoder):
+    """Frame version 2, with and without the AK8963 block, seq and t_us wraps."""
+    rng = np.random.default_rng(11)
+    n = 3000
+    counts = rng.integers(-32768, 32768, (n, 7))
+    mags = rng.integers(-32768, 32768, (n, 3))
+    st2 = rng.integers(0, 256, n)
+    has_mag = rng.random(n) < 0.3
+    counts[:4] = [[-32768] * 7, [32767] * 7, [0] * 7, [-1] * 7]
+    mags[:4] = [[-32768] * 3, [32767] * 3, [0] * 3, [-1] * 3]
+    seqs = rng.integers(0, 65536, n)
+    t_us = rng.integers(0, 2 ** 32, n, dtype=np.uint64)
+    seqs[5:9] = [65534, 65535, 0, 1]                           # seq wrap
+    t_us[5:9] = [2 ** 32 - 2000, 2 ** 32 - 1000, 0, 1000]      # t_us wrap
+    counts[5:9, 3] = 1000                                       # a plausible 24 °C
+    lines, want = [], []
+    for k in range(n):
+        mag = tuple(mags[k].tolist()) + (int(st2[k]),) if has_mag[k] else None
+        block = ' '.join(str(v) for v in (mag or (0, 0, 0, 0)))
+        lines.append(f'E {seqs[k]} {t_us[k]} ' + ' '.join(str(c) for c in counts[k].tolist())
+                     + f' {int(has_mag[k])} {block}')
+        want.append(encode_frame_v2(int(seqs[k]), int(t_us[k]), counts[k].tolist(), mag))
+    got = run_encoder(encoder, lines)
+    assert len(got) == n and got == want
+    assert {len(g) for g in got} == {25, 32}
+    assert [decode_frame(g).mag is not None for g in got] == has_mag.tolist()
+    parser = FrameParser()                      # the wrap frames 5..8 continue each other
+    out = parser.feed(b''.join(got[5:9])) + parser.flush()
+    assert [(f.seq, f.t_us, f.version) for f in out] == [
+        (65534, 2 ** 32 - 2000, 2), (65535, 2 ** 32 - 1000, 2), (0, 0, 2), (1, 1000, 2)]
+    assert parser.lost_frames == 0
+
+
+def test_v2_info_frames_byte_identical(encoder):
+    rng = np.random.default_rng(12)
+    infos = [InfoFrame(0, 0x71, 2, 250, 1000, 1, 1_000_000, (2, 0), 2, 1, (176, 177, 165), 0,
+                       0, 0, 2),
+             InfoFrame(2, 0, 16, 2000, 4, 6, 115200, (255, 255), 1, 0, (0, 0, 0), 65535,
+                       65535, 4, 2)]
+    for _ in range(300):
+        infos.append(InfoFrame(
+            int(rng.integers(0, 4)), int(rng.integers(0, 256)), int(rng.choice([2, 4, 8, 16])),
+            int(rng.choice([250, 500, 1000, 2000])), int(rng.integers(1, 65536)),
+            int(rng.integers(0, 8)), int(rng.integers(0, 2 ** 32)),
+            (int(rng.integers(0, 256)), int(rng.integers(0, 256))), int(rng.integers(1, 3)),
+            int(rng.integers(0, 3)), tuple(int(v) for v in rng.integers(0, 256, 3)),
+            int(rng.integers(0, 65536)), int(rng.integers(0, 65536)), int(rng.integers(0, 5)),
+            2))
+    lines = [f'J {i.status} {i.who_am_i} {i.accel_range_g} {i.gyro_range_dps} {i.rate_hz} '
+             f'{i.dlpf_cfg} {i.baud} {i.fw_version[0]} {i.fw_version[1]} {i.frame_version} '
+             f'{i.mag_status} {i.asa[0]} {i.asa[1]} {i.asa[2]} {i.recoveries} {i.i2c_errors} '
+             f'{i.last_recovery}' for i in infos]
+    got = run_encoder(encoder, lines)
+    assert got == [encode_info_v2(i) for i in infos]
+    assert [decode_info(f) for f in got] == infos
+    parser = FrameParser()
+    frame = encode_frame_v2(1, 1000, (0, 0, 16384, 1000, 0, 0, 0))
+    assert parser.feed(got[0] + frame + got[1]) == []           # one frame: unconfirmed
+    assert parser.take_infos() == infos[:2]
+    assert decode_frame(frame) == RawFrame(1, 1000, (0, 0, 16384, 1000, 0, 0, 0), None, 2)

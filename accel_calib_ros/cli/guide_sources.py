@@ -158,7 +158,7 @@ class SerialSource:
             import serial
         except ImportError:
             raise InputError('pyserial is not installed (pip install pyserial)') from None
-        from ..dataio.mpu9250_frame import AsciiLineParser, Converter, FrameParser
+        from ..dataio.wire import AsciiLineParser, Converter, FrameParser
         self.label = f'serial {port} at {baud} baud'
         try:
             self.port = serial.Serial(port, baud, timeout=0.05)

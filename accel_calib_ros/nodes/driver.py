@@ -1,14 +1,29 @@
 """
 ROS 2 node ``mpu9250_driver``: MPU9250 serial frames to ``sensor_msgs/Imu``.
 
-Reads the binary frame of the interface spec (or the ASCII line format) from a serial
-port in a background thread and publishes ``imu/data_raw`` (sensor_msgs/Imu,
-REP-145: orientation not reported, identity quaternion with
-``orientation_covariance[0] = -1``) and ``imu/temperature`` (sensor_msgs/Temperature,
+Reads the binary frames of the interface spec, versions 1 and 2 told apart frame by frame
+(or the ASCII line format), from a serial port in a background thread and publishes
+``imu/data_raw`` (sensor_msgs/Imu, REP-145: orientation not reported, identity quaternion
+with ``orientation_covariance[0] = -1``) and ``imu/temperature`` (sensor_msgs/Temperature,
 at ``temperature_rate_hz``, stamped like the sample it comes from), both reliable with
-depth 100. A lost port is logged once per outage and reopened with exponential
-back-off; ``/diagnostics`` reports the link at 1 Hz: frame rate, CRC errors, rejected
-candidates, lost samples (``seq`` gaps, cross-checked with ``t_us``) and the sensor.
+depth 100, and, for frames that carry the AK8963 block (frame version 2, an MPU-9250 behind
+firmware 2.x), ``imu/mag`` (sensor_msgs/MagneticField, tesla, in the accelerometer's frame:
+x = y_mag, y = x_mag, z = −z_mag; 0.15 µT per count times the factory adjustment
+(ASA − 128)/256 + 1 from the info frame; overflow samples (ST2 HOFL) are dropped and
+counted; covariance from ``magnetic_field_stddev``, all zeros = unknown). Until the info
+frame gives the ASA values, magnetometer samples are held back (at most 10 s after the port
+opens; then they are published unadjusted and diagnostics say so). ``/diagnostics`` reports
+the link at 1 Hz: frame version, frame rate, CRC
+errors, rejected candidates, lost samples (``seq`` gaps, cross-checked with ``t_us``),
+timing jitter, the sensor and the firmware's recoveries.
+
+Supervision: the reader thread never dies: any exception is caught, counted
+(``reader_errors``), logged at most every 10 s, and the reader starts over. A lost port is
+logged once per outage and reopened with exponential back-off. The watchdog: no valid
+frame for ``watchdog_s`` (0.5 s) makes ``/diagnostics`` ERROR and the port is reopened
+(then again after 2 s, 4 s, ... up to ``reconnect_max_s``, and never within 2 s of opening
+it: an Arduino restarts when its port is opened); diagnostics say OK only while frames
+flow.
 
 The firmware (``firmware/``, docs/firmware.md) sends an info frame at start-up and on
 request ('?'): chip (WHO_AM_I), ranges, rate and baud. With ``ranges_from_device`` the
@@ -18,7 +33,7 @@ the firmware does not know is reported as an error. Once the sample rate is know
 driver warns when the baud rate cannot carry it (22-byte frames, 10 bits per byte).
 
 Stamps (``timestamp``): ``device`` maps the microcontroller µs clock onto host time
-(:class:`~accel_calib_ros.dataio.mpu9250_frame.ClockMapper`: the transport jitter does not
+(:class:`~accel_calib_ros.dataio.wire.clock.ClockMapper`: the transport jitter does not
 reach the stamps); ``host`` uses the receive time, spread back over a batch by the
 device clock.
 """
@@ -31,13 +46,13 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import Imu, Temperature
+from sensor_msgs.msg import Imu, MagneticField, Temperature
 import serial
 
 from .common import declare_parameters, Param, ParameterProblem, run
-from ..dataio.mpu9250_frame import (ACCEL_LSB_PER_G, AsciiLineParser, ClockMapper, Converter,
-                                    FRAME_SIZE, FrameParser, GYRO_LSB_PER_DPS,
-                                    temp_counts_range, TEMP_FORMULAS)
+from ..dataio.wire import (ACCEL_LSB_PER_G, AsciiLineParser, ClockMapper, Converter,
+                           FRAME_V1_SIZE, FRAME_V2_SIZE, FrameParser, GYRO_LSB_PER_DPS,
+                           MAG_AK8963, MagConverter, temp_counts_range, TEMP_FORMULAS)
 
 NODE_NAME = 'mpu9250_driver'
 QUEUE_DEPTH = 100
@@ -48,8 +63,15 @@ CHIP_CHOICES = ('auto', 'mpu9250', 'mpu9255', 'mpu6500', 'mpu6050')
 INFO_REQUEST = b'?'
 INFO_WAIT_S = 1.5
 READER_ERROR_LOG_S = 10.0
-"""At most one log line per this many seconds about reader failures."""
+"""At most one log line per this many seconds about reader failures (and watchdog reopens)."""
+OPEN_GRACE_S = 2.0
+"""The watchdog does not reopen a port within this many seconds of opening it (an Arduino
+Uno resets when its port is opened: bootloader and sensor start-up take about 1.5 s)."""
 BITS_PER_BYTE = 10
+MAG_ASA_WAIT_S = 10.0
+"""Magnetometer samples wait this long after opening the port for the info frame's ASA."""
+JITTER_WARN_US = 100.0
+"""Device clock jitter above which the driver says once that the stamps carry it."""
 
 PARAMS = [
     Param('port', '/dev/ttyUSB0', 'serial device path (a change reopens the port)',
@@ -70,6 +92,8 @@ PARAMS = [
           'accelerometer noise, m/s² (diagonal covariance; 0 = unknown)', low=0.0),
     Param('angular_velocity_stddev', 0.002,
           'gyroscope noise, rad/s (diagonal covariance; 0 = unknown)', low=0.0),
+    Param('magnetic_field_stddev', 0.0,
+          'magnetometer noise, T (diagonal covariance of imu/mag; 0 = unknown)', low=0.0),
     Param('timestamp', 'device', 'stamps from the device clock mapped to host time (device) '
           'or from the receive time (host)', choices=TIMESTAMPS, read_only=True),
     Param('temperature_rate_hz', 10.0, 'imu/temperature publish rate, Hz (0 = every sample)',
@@ -78,6 +102,8 @@ PARAMS = [
           high=60.0),
     Param('reconnect_max_s', 5.0, 'longest reconnect delay, s', low=0.0, low_open=True,
           high=600.0),
+    Param('watchdog_s', 0.5, 'no valid frame for this long: diagnostics ERROR and the port '
+          'is reopened, s', low=0.05, high=60.0),
 ]
 
 
@@ -111,6 +137,10 @@ class Mpu9250Driver(Node):
         self.reconnect_min_s = p['reconnect_min_s']
         self.reconnect_max_s = p['reconnect_max_s']
         self.device_info = None
+        self.mag_published = 0
+        self.mag_overflows = 0
+        self.mag_held = 0
+        self._mag_unadjusted_warned = False
         self._temp_period_s = 0.0
         self._last_temp_stamp = None
         self._apply_settings()
@@ -126,6 +156,7 @@ class Mpu9250Driver(Node):
                          reliability=ReliabilityPolicy.RELIABLE)
         self.imu_pub = self.create_publisher(Imu, 'imu/data_raw', qos)
         self.temp_pub = self.create_publisher(Temperature, 'imu/temperature', qos)
+        self.mag_pub = self.create_publisher(MagneticField, 'imu/mag', qos)
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.connected = False
         self.reconnects = 0
@@ -134,7 +165,16 @@ class Mpu9250Driver(Node):
         self.reader_errors = 0
         self._last_reader_error = ''
         self._reader_error_logged = -math.inf
-        self._diag_prev = (time.monotonic(), 0, 0, 0, 0)
+        self.watchdog_s = p['watchdog_s']
+        self.watchdog_reopens = 0
+        self._watchdog_wait = self.watchdog_s
+        self._watchdog_logged = -math.inf
+        self._opened_at = None          # monotonic time the port was (re)opened
+        self._first_open_at = None
+        self._last_frame_at = None      # monotonic time of the last valid frame
+        self._jitter_warned = False
+        self._recoveries_logged = -math.inf
+        self._diag_prev = (time.monotonic(), 0, 0, 0, 0, 0)
         self._stop = threading.Event()
         self._serial = None
         self._thread = threading.Thread(target=self._run, name='mpu9250_serial', daemon=True)
@@ -176,11 +216,18 @@ class Mpu9250Driver(Node):
             accel_cov[k] = p['linear_acceleration_stddev'] ** 2
             gyro_cov[k] = p['angular_velocity_stddev'] ** 2
         self.accel_cov, self.gyro_cov = accel_cov, gyro_cov
+        mag_cov = [0.0] * 9
+        for k in (0, 4, 8):
+            mag_cov[k] = p['magnetic_field_stddev'] ** 2
+        self.mag_cov = mag_cov
+        asa = info.asa if info is not None and info.mag_status == MAG_AK8963 else None
+        self.mag_converter = MagConverter(asa) if asa is not None else None
         rate = p['temperature_rate_hz']
         self._temp_period_s = 1.0 / rate if rate > 0 else 0.0
         self.frame_id = p['frame_id']
         self.reconnect_min_s = p['reconnect_min_s']
         self.reconnect_max_s = p['reconnect_max_s']
+        self.watchdog_s = p['watchdog_s']
         parser = getattr(self, 'parser', None)
         if isinstance(parser, FrameParser):
             parser.temp_range = self._temp_range()
@@ -203,6 +250,15 @@ class Mpu9250Driver(Node):
         if old is not None and old == info:
             return
         log = self.get_logger()
+        if old is not None and info.recoveries > old.recoveries and \
+                info[:8] == old[:8] and info.frame_version == old.frame_version:
+            now = time.monotonic()          # the firmware re-initialised the sensor
+            if now - self._recoveries_logged >= READER_ERROR_LOG_S:
+                self._recoveries_logged = now
+                log.warning(f'the firmware recovered the sensor ({info.recovery_text}); '
+                            f'{info.recoveries} recoveries, {info.i2c_errors} failed I2C '
+                            'transfers since it started (firmware_recoveries in /diagnostics)')
+            return
         text = (f'firmware {info.fw_version[0]}.{info.fw_version[1]}: {info.chip} '
                 f'(WHO_AM_I 0x{info.who_am_i:02x}), ±{info.accel_range_g} g, '
                 f'±{info.gyro_range_dps} °/s, {info.rate_hz} Hz, built for {info.baud} baud')
@@ -223,18 +279,28 @@ class Mpu9250Driver(Node):
     def _check_capacity(self):
         """Warn once when the baud rate cannot carry the observed sample rate."""
         parser = self.parser
-        if self._baud_warned or not isinstance(parser, FrameParser) \
-                or parser.period_us is None or parser.frames < 50:
+        if not isinstance(parser, FrameParser) or parser.period_us is None \
+                or parser.frames < 50:
+            return
+        jitter = parser.jitter_us
+        if not self._jitter_warned and jitter is not None and jitter > JITTER_WARN_US:
+            self._jitter_warned = True
+            self.get_logger().warning(
+                f'the device stamps its samples with {jitter:.0f} µs of jitter (a firmware '
+                'that stamps at read time?): frames are kept, and device timestamps carry '
+                'the jitter (timing_jitter_us in /diagnostics)')
+        if self._baud_warned:
             return
         rate = 1e6 / parser.period_us
         baud = self.baud
         if self.device_info is not None:
             baud = min(baud, self.device_info.baud)
-        capacity = baud / (BITS_PER_BYTE * FRAME_SIZE)
+        size = FRAME_V2_SIZE if parser.version == 2 else FRAME_V1_SIZE
+        capacity = baud / (BITS_PER_BYTE * size)
         self._baud_warned = True
         if rate > capacity:
             self.get_logger().warning(
-                f'{baud} baud carries at most {capacity:.0f} frames/s of {FRAME_SIZE} bytes '
+                f'{baud} baud carries at most {capacity:.0f} frames/s of {size} bytes '
                 f'but the device samples at {rate:.0f} Hz: about '
                 f'{100.0 * (1.0 - capacity / rate):.0f} % of the samples will be lost '
                 '(lost_frames in /diagnostics); use 1000000 baud (firmware default)')
@@ -272,12 +338,24 @@ class Mpu9250Driver(Node):
     def _read_loop(self):
         delay = self.reconnect_min_s
         outage_logged = False
-        ever_connected = False
+        ever_connected = self._opened_at is not None
         while not self._stop.is_set():
             if self._reopen.is_set():
                 self._reopen.clear()
                 self._drop_port()
                 self.get_logger().info(f'reopening {self.port} at {self.baud} baud')
+            elif self._serial is not None and self._watchdog_due():
+                self._drop_port()
+                self.watchdog_reopens += 1
+                now = time.monotonic()
+                if now - self._watchdog_logged >= READER_ERROR_LOG_S:
+                    self._watchdog_logged = now
+                    self.get_logger().warning(
+                        f'no valid frame for {now - self._silent_since():.1f} s: reopening '
+                        f'{self.port} (watchdog; {self.watchdog_reopens} so far)')
+                self._watchdog_wait = min(self._watchdog_wait * 2.0,
+                                          max(self.reconnect_max_s, self.watchdog_s))
+                ever_connected = False      # a reopen, not a reconnection after an outage
             if self._serial is None:
                 try:
                     self._serial = self._open()
@@ -294,14 +372,17 @@ class Mpu9250Driver(Node):
                 self.parser.reset()
                 self.clock_mapper.reset()
                 self._prev_stamp = None
-                self._connected_at = time.monotonic()
+                first_open = self._opened_at is None
+                self._connected_at = self._opened_at = time.monotonic()
+                if first_open:
+                    self._first_open_at = self._opened_at
                 self._info_requests = 0
                 self.connected = True
                 delay = self.reconnect_min_s
                 if ever_connected:
                     self.reconnects += 1
                     self.get_logger().info(f'reconnected to {self.port}')
-                else:
+                elif first_open:
                     self.get_logger().info(f'connected to {self.port}')
                 ever_connected = True
                 outage_logged = False
@@ -322,6 +403,25 @@ class Mpu9250Driver(Node):
             elif isinstance(self.parser, FrameParser):
                 self._publish(self.parser.flush(), self.get_clock().now().nanoseconds * 1e-9)
             self._maybe_request_info()
+
+    def _silent_since(self):
+        """Return the monotonic time since which no valid frame came (None: no port)."""
+        if self._opened_at is None:
+            return None
+        if self._last_frame_at is None:
+            return self._opened_at
+        return max(self._last_frame_at, self._opened_at)
+
+    def _watchdog_due(self):
+        """Whether the watchdog should reopen the port now."""
+        since = self._silent_since()
+        if since is None:
+            return False
+        now = time.monotonic()
+        info = self.device_info
+        if info is not None and info.status != 0:
+            return False                # the link works; the firmware says why it is idle
+        return now - since >= self._watchdog_wait and now - self._opened_at >= OPEN_GRACE_S
 
     def _maybe_request_info(self):
         """Ask the firmware for its info frame when none came soon after connecting."""
@@ -356,6 +456,8 @@ class Mpu9250Driver(Node):
     def _publish(self, frames, host_s):
         if not frames:
             return
+        self._last_frame_at = time.monotonic()
+        self._watchdog_wait = self.watchdog_s
         stamps = self._stamps(frames, host_s)
         to_si = self.converter.to_si
         temp_period = self._temp_period_s
@@ -396,6 +498,43 @@ class Mpu9250Driver(Node):
                 self._stop.set()
                 return
             self.published += 1
+            if frame.mag is not None:
+                self._publish_mag(frame.mag, stamp)
+
+    def _publish_mag(self, block, stamp):
+        """Publish one AK8963 sample (held until the ASA is known, dropped on overflow)."""
+        conv = self.mag_converter
+        if conv is None:
+            info = self.device_info
+            if info is not None and info.mag_status == MAG_AK8963:
+                conv = self.mag_converter = MagConverter(info.asa)
+            elif self._opened_at is not None and \
+                    time.monotonic() - self._opened_at < MAG_ASA_WAIT_S and \
+                    (info is None or info.info_version < 2):
+                self.mag_held += 1              # the info frame with the ASA may come
+                return
+            else:
+                conv = MagConverter()           # no ASA from this device: unadjusted
+                if not self._mag_unadjusted_warned:
+                    self._mag_unadjusted_warned = True
+                    self.get_logger().warning(
+                        'magnetometer samples without the AK8963 sensitivity adjustment (no '
+                        'info frame with ASA values): imu/mag is unadjusted, up to ±50 % off')
+        field = conv.to_tesla(block)
+        if field is None:
+            self.mag_overflows += 1             # ST2 HOFL: not a valid measurement
+            return
+        msg = MagneticField()
+        msg.header.stamp = stamp
+        msg.header.frame_id = self.frame_id
+        msg.magnetic_field.x, msg.magnetic_field.y, msg.magnetic_field.z = field
+        msg.magnetic_field_covariance = self.mag_cov
+        try:
+            self.mag_pub.publish(msg)
+        except Exception:               # noqa: B902 - context shut down under us: stop
+            self._stop.set()
+            return
+        self.mag_published += 1
 
     def _stamps(self, frames, host_s):
         if frames[-1].t_us is None:
@@ -433,26 +572,53 @@ class Mpu9250Driver(Node):
         return c
 
     def _publish_diagnostics(self):
+        self.diag_pub.publish(self.diagnostics())
+
+    def diagnostics(self):
+        """
+        Return the link status for ``/diagnostics`` (one period since the last call).
+
+        Levels: ERROR when not connected, when the firmware does not stream, when no valid
+        frame came for ``watchdog_s``, when the reader failed in the period or the link is
+        badly corrupted; WARN while waiting for the first frame after opening the port and
+        when frames were lost, CRC errors seen or the firmware recovered the sensor in the
+        period; OK only while frames flow cleanly.
+
+        :return: DiagnosticArray with one DiagnosticStatus.
+        """
         now = time.monotonic()
         c = self.counters()
-        t0, frames0, errors0, lost0, failures0 = self._diag_prev
+        info = self.device_info
+        recoveries = info.recoveries if info is not None else 0
+        t0, frames0, errors0, lost0, failures0, recoveries0 = self._diag_prev
         self._diag_prev = (now, c['frames'], c['crc_errors'], c['lost_frames'],
-                           self.reader_errors)
+                           self.reader_errors, recoveries)
         rate = (c['frames'] - frames0) / max(now - t0, 1e-3)
         new_errors = c['crc_errors'] - errors0
         new_lost = c['lost_frames'] - lost0
+        # Since the last valid frame (or the first opening): a watchdog reopen does not
+        # make the silence any shorter.
+        since = self._last_frame_at if self._last_frame_at is not None else self._first_open_at
+        silence = now - since if since is not None else math.inf
         status = DiagnosticStatus()
         status.name = f'{self.get_name()}: serial'
         status.hardware_id = self.port
         if not self.connected:
             status.level = DiagnosticStatus.ERROR
             status.message = f'not connected: {self._last_error}'
-        elif self.device_info is not None and self.device_info.status != 0:
+        elif info is not None and info.status != 0:
             status.level = DiagnosticStatus.ERROR
-            status.message = f'firmware: {self.device_info.status_text}'
-        elif rate <= 0:
+            status.message = f'firmware: {info.status_text}'
+        elif silence >= self.watchdog_s and (self._last_frame_at is not None
+                                             or silence >= OPEN_GRACE_S):
+            status.level = DiagnosticStatus.ERROR
+            status.message = f'no valid frame for {silence:.1f} s'
+            if self.watchdog_reopens:
+                status.message += f' (port reopened {self.watchdog_reopens} times)'
+        elif rate <= 0 or silence >= self.watchdog_s:
             status.level = DiagnosticStatus.WARN
-            status.message = 'connected, no frames'
+            status.message = 'connected, waiting for the first frame' \
+                if self._last_frame_at is None else f'no valid frame for {silence:.1f} s'
         elif self.reader_errors > failures0:
             status.level = DiagnosticStatus.ERROR
             status.message = (f'serial reader failed and was restarted: '
@@ -461,6 +627,11 @@ class Mpu9250Driver(Node):
             status.level = DiagnosticStatus.ERROR
             status.message = (f'link badly corrupted (quality {self.parser.quality:.2f}): only '
                               'frames confirmed by both neighbours are published')
+        elif recoveries > recoveries0:
+            status.level = DiagnosticStatus.WARN
+            status.message = (f'the firmware recovered the sensor {recoveries - recoveries0} '
+                              f'times in the last period ({info.recovery_text}); '
+                              f'{new_lost} samples lost')
         elif new_errors or new_lost:
             status.level = DiagnosticStatus.WARN
             status.message = f'{new_errors} CRC errors, {new_lost} lost frames in the last period'
@@ -470,31 +641,66 @@ class Mpu9250Driver(Node):
         else:
             status.level = DiagnosticStatus.OK
             status.message = 'streaming'
+        parser = self.parser
+        binary = isinstance(parser, FrameParser)
+        version = parser.version if binary else None
         values = {'frame_rate_hz': f'{rate:.1f}', 'frames': c['frames'],
+                  'frame_version': version if version else ('ascii' if not binary else 'none'),
                   'crc_errors': c['crc_errors'], 'lost_frames': c['lost_frames'],
                   'bytes_skipped': c['bytes_skipped'], 'connected': self.connected,
                   'rejected': c['rejected'], 'reconnects': self.reconnects,
                   'reader_errors': self.reader_errors,
+                  'watchdog_reopens': self.watchdog_reopens,
+                  'last_frame_age_s': f'{silence:.2f}' if math.isfinite(silence) else 'none',
                   'format': self.format, 'timestamp': self.timestamp, 'baud': self.baud,
                   'accel_range_g': self.accel_range_g, 'gyro_range_dps': self.gyro_range_dps,
                   'temperature_formula': self.converter.temp_formula}
-        parser = self.parser
-        if isinstance(parser, FrameParser):
+        if binary:
             values['link_quality'] = f'{parser.quality:.3f}'
-        if isinstance(parser, FrameParser) and parser.period_us:
-            values['device_rate_hz'] = f'{1e6 / parser.period_us:.1f}'
-        info = self.device_info
+            values['frames_v1'] = c['frames_v1']
+            values['frames_v2'] = c['frames_v2']
+            values['timing_jitter_frames'] = c['timing_jitter']
+            jitter = parser.jitter_us
+            values['timing_jitter_us'] = 'unknown' if jitter is None else f'{jitter:.0f}'
+            values['parser_errors'] = c['internal_errors']
+            if parser.period_us:
+                values['device_rate_hz'] = f'{1e6 / parser.period_us:.1f}'
         if info is not None:
             values.update({'chip': info.chip, 'who_am_i': f'0x{info.who_am_i:02x}',
                            'firmware_status': info.status_text,
+                           'firmware_version': f'{info.fw_version[0]}.{info.fw_version[1]}',
                            'firmware_rate_hz': info.rate_hz, 'firmware_baud': info.baud})
+            if info.info_version >= 2:
+                values.update({'firmware_frame_version': info.frame_version,
+                               'firmware_recoveries': info.recoveries,
+                               'firmware_i2c_errors': info.i2c_errors,
+                               'firmware_last_recovery': info.recovery_text})
+        values.update(self._mag_diagnostics(c))
         if self.timestamp == 'device':
             values['clock_drift_ppm'] = f'{self.clock_mapper.drift_ppm:.1f}'
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         array = DiagnosticArray()
         array.header.stamp = self.get_clock().now().to_msg()
         array.status = [status]
-        self.diag_pub.publish(array)
+        return array
+
+    def _mag_diagnostics(self, counters):
+        """Return the magnetometer's diagnostic values."""
+        info = self.device_info
+        conv = self.mag_converter
+        if info is not None and info.info_version >= 2:
+            text = info.mag_text
+            if info.mag_status != MAG_AK8963:
+                text += f' ({info.chip}): no imu/mag'
+        elif counters.get('mag_frames'):
+            text = 'AK8963 block in the frames, no info frame from the firmware'
+        else:
+            text = 'not reported (no info frame of version 2): no imu/mag'
+        return {'magnetometer': text, 'mag_frames': counters.get('mag_frames', 0),
+                'mag_published': self.mag_published, 'mag_overflows': self.mag_overflows,
+                'mag_held_for_asa': self.mag_held,
+                'mag_asa': ' '.join(str(a) for a in conv.asa) if conv is not None
+                else 'unknown'}
 
     def destroy_node(self):
         """Stop the serial thread, close the port, then destroy the node."""

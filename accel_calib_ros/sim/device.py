@@ -27,10 +27,14 @@ import tty
 
 import numpy as np
 
-from ..dataio.mpu9250_frame import (ACCEL_LSB_PER_G, Converter, encode_ascii_line, encode_frame,
-                                    FRAME_SIZE, GYRO_LSB_PER_DPS)
+from ..dataio.wire import (ACCEL_LSB_PER_G, Converter, encode_ascii_line, encode_frame,
+                           encode_frame_v2, GYRO_LSB_PER_DPS)
+from ..dataio.wire.info import encode_info, encode_info_v2, InfoFrame, MAG_ABSENT, MAG_AK8963
+from ..dataio.wire.units import MagConverter
 
 CHUNK_S = 10.0
+INFO_PERIOD_S = 1.0
+"""The info frame is sent at each plug-in and then once a second, as the firmware does."""
 """Seconds of samples simulated at a time once the script has ended."""
 G0 = 9.80665
 """Standard gravity, m/s² (the simulator's; core.simulate, which needs scipy, loads lazily)."""
@@ -117,6 +121,9 @@ def add_arguments(parser):
                         help='fraction of bytes to flip on the wire, e.g. 0.02 (default 0)')
     parser.add_argument('--ascii', action='store_true',
                         help='stream the ASCII line format (t_us,ax,ay,az,temp,gx,gy,gz)')
+    parser.add_argument('--frame-version', type=int, choices=(1, 2), default=2,
+                        help='binary frame version: 2 (CRC-16, the firmware default) or 1 '
+                             '(default %(default)s)')
     parser.add_argument('--unplug-s', type=_non_negative, default=2.0,
                         help='seconds unplugged after SIGUSR1 (default %(default)s)')
     parser.add_argument('--duration', type=_positive, default=None,
@@ -326,6 +333,7 @@ class Wire:
 
     def __init__(self, args, rng):
         self.ascii = args.ascii
+        self.version = getattr(args, 'frame_version', 2)
         self.corrupt = args.corrupt
         self.rng = rng
         self.period_us = 1e6 / args.rate
@@ -334,17 +342,55 @@ class Wire:
         self.frames = 0
         self.bytes_corrupted = 0
         self.frames_damaged = 0
+        self.ranges = (args.accel_range, args.gyro_range)
+        self.rate_hz = min(max(int(round(args.rate)), 1), 0xFFFF)
+        self.mag_converter = MagConverter()
 
-    def encode(self, counts, first_index):
-        """Encode samples number ``first_index``... as bytes (corrupted if asked)."""
+    def info(self, has_mag):
+        """
+        Return the info frame a firmware would send (none in the ASCII format).
+
+        A virtual MPU-9250 that streams; with a magnetometer, an AK8963 whose factory
+        adjustment is neutral (ASA 128), so the driver converts its blocks at once.
+        """
+        if self.ascii:
+            return b''
+        info = InfoFrame(0, 0x71, self.ranges[0], self.ranges[1], self.rate_hz, 1, 1_000_000,
+                         (2, 0), self.version, MAG_AK8963 if has_mag else MAG_ABSENT,
+                         (128, 128, 128) if has_mag else (0, 0, 0))
+        return encode_info_v2(info) if self.version == 2 else encode_info(info)
+
+    def mag_blocks(self, mag_ut):
+        """
+        Return the AK8963 blocks of magnetometer samples for :meth:`encode` (None: none).
+
+        :param mag_ut: (n, 3) µT in the accelerometer frame, NaN rows without a sample, or
+            None.
+        """
+        if mag_ut is None or self.version != 2 or self.ascii:
+            return None
+        to_counts = self.mag_converter.to_counts
+        return [None if not np.all(np.isfinite(row)) else to_counts(row * 1e-6)
+                for row in np.asarray(mag_ut, float)]
+
+    def encode(self, counts, first_index, mag=None):
+        """
+        Encode samples number ``first_index``... as bytes (corrupted if asked).
+
+        :param counts: (n, 7) int16 counts.
+        :param mag: None, or n entries each None or (hx, hy, hz, st2): AK8963 counts in its
+            own axes (e.g. from ``MagConverter.to_counts``), sent in version-2 frames.
+        """
         pieces, sizes = [], []
         for k, row in enumerate(counts.tolist()):
             t_us = (self.t0_us + int(round((first_index + k) * self.period_us))) & 0xFFFFFFFF
             if self.ascii:
                 piece = encode_ascii_line(row, t_us)
+            elif self.version == 2:
+                piece = encode_frame_v2(self.seq, t_us, row, None if mag is None else mag[k])
             else:
                 piece = encode_frame(self.seq, t_us, row)
-            self.seq = (self.seq + 1) & 0xFF
+            self.seq = (self.seq + 1) & (0xFFFF if self.version == 2 else 0xFF)
             pieces.append(piece)
             sizes.append(len(piece))
         self.frames += len(pieces)
@@ -355,12 +401,8 @@ class Wire:
             if len(hit):
                 buf[hit] ^= self.rng.integers(1, 256, len(hit)).astype(np.uint8)
                 self.bytes_corrupted += len(hit)
-                if self.ascii:
-                    ends = np.cumsum(sizes)
-                    self.frames_damaged += len(np.unique(np.searchsorted(ends, hit,
-                                                                         side='right')))
-                else:
-                    self.frames_damaged += len(np.unique(hit // FRAME_SIZE))
+                ends = np.cumsum(sizes)
+                self.frames_damaged += len(np.unique(np.searchsorted(ends, hit, side='right')))
                 data = buf.tobytes()
         return data
 
@@ -464,6 +506,9 @@ def run(args):
     try:
         pty = Pty(args.link)
         print(pty.path, flush=True)
+        has_mag = sensor.sensor.magnetometer is not None
+        pty.write(wire.info(has_mag))
+        info_due = time.monotonic() + INFO_PERIOD_S
         start = time.monotonic()
         sent = 0                                     # samples generated (sent or dropped)
         batch_s = min(0.01, 2.0 / args.rate)
@@ -491,6 +536,10 @@ def run(args):
                     sent += missed
                 pty = Pty(args.link)
                 print(pty.path, flush=True)
+                pty.write(wire.info(has_mag))
+            if pty is not None and now >= info_due:      # as the firmware: once a second
+                pty.write(wire.info(has_mag))
+                info_due = now + INFO_PERIOD_S
             due = int((now - start) * args.rate) + 1
             if due > sent:
                 n = due - sent
@@ -498,7 +547,7 @@ def run(args):
                 if pty is None:
                     dropped += n
                 else:
-                    data = wire.encode(counts, sent)
+                    data = wire.encode(counts, sent, wire.mag_blocks(sensor.last_mag))
                     lost = pty.write(data)
                     if lost:
                         dropped += int(math.ceil(lost * n / len(data)))

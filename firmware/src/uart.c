@@ -41,6 +41,11 @@ void uart_write(const uint8_t *data, uint8_t n)
     UCSR0B |= _BV(UDRIE0);
 }
 
+uint8_t uart_request_pending(void)
+{
+    return rx_request;
+}
+
 uint8_t uart_take_request(void)
 {
     uint8_t r = rx_request;

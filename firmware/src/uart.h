@@ -13,6 +13,8 @@ void uart_init(uint32_t baud);
 uint8_t uart_tx_free(void);
 /* Queue n bytes; the caller checked uart_tx_free() >= n. */
 void uart_write(const uint8_t *data, uint8_t n);
+/* Return the "info requested" flag without clearing it. */
+uint8_t uart_request_pending(void);
 /* Return and clear the "info requested" flag (set by '?' or 'I' received). */
 uint8_t uart_take_request(void);
 

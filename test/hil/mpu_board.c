@@ -23,12 +23,34 @@
  * --link) or a file. simavr 1.6 quirks are repaired here: TWINT is made to clear when
  * written with 1, and the status after SLA+W reads 0x18/0x20 (not 0x28/0x30).
  *
+ * The MPU-9250/9255 carries an AK8963 magnetometer (address 0x0C, reachable once the
+ * firmware sets INT_PIN_CFG.BYPASS_EN): WIA 0x48, ST1 (DRDY, DOR), HXL..HZH little-endian,
+ * ST2 (HOFL, BITM; reading it ends the read cycle and clears DRDY), CNTL1 (mode, BIT),
+ * CNTL2 (SRST) and the fuse ROM ASA values (readable in fuse ROM access mode only). In
+ * continuous mode 2 it measures every 10 ms a field that wanders slowly (random walk), or
+ * with --mag-hofl-every N an overflow (HOFL) every Nth measurement. Its measurements are
+ * logged with --mag-log FILE ("index t_us hx hy hz st2"). --mag none removes it; the
+ * MPU-6500/6050 (--who 0x70/0x68) have none.
+ *
+ * Faults (--fault KIND:START_MS[:DURATION_MS], up to 8, simulated milliseconds):
+ *   int-silent  the sensor keeps sampling but does not drive INT for the duration;
+ *   brownout    the sensor's registers fall back to their power-on state (INT_ENABLE 0,
+ *               DLPF 0, ...): INT stays silent until the firmware configures it again;
+ *   nack        the sensor does not acknowledge any I2C transfer for the duration;
+ *   sda-stuck   the sensor holds SDA low (PC4 reads 0, transfers fail) for the duration
+ *               and lets it go only at an SCL pulse after that (a slave stuck in a byte:
+ *               only a bus recovery that clocks SCL by hand frees it).
+ * The I2C pins have the board's external pull-ups (PC4 and PC5 read 1 when released); SCL
+ * pulses clocked by hand (PORTC/DDRC, TWI off) are counted.
+ *
  * Usage: mpu_board --elf FW.elf [--link PATH | --uart-out FILE] [--seconds S]
  *        [--who 0x71 | --who none] [--seed N] [--samples FILE] [--log FILE] [--fast]
  *        [--wait-open S]   (start the board only once the pty is opened, S s at most)
  *        [--raw-twi]       (keep simavr 1.6's TWI quirks, to check the firmware copes)
+ *        [--fault KIND:START_MS[:DURATION_MS]]... [--mag none] [--asa X,Y,Z]
+ *        [--mag-log FILE] [--mag-hofl-every N]
  * On exit (after S simulated seconds, or SIGINT/SIGTERM) one JSON line on stdout reports
- * what the firmware configured and how much it sent.
+ * what the firmware configured and how much it sent, the faults and the SCL pulses.
  */
 #define _GNU_SOURCE
 #include <errno.h>
@@ -52,6 +74,7 @@
 
 #define F_CPU_HZ 16000000u
 #define MPU_ADDR 0x68
+#define AK_ADDR 0x0C
 /* ATmega328P data addresses */
 #define A_TWBR 0xB8
 #define A_TWSR 0xB9
@@ -60,6 +83,10 @@
 #define A_UBRR0L 0xC4
 #define A_UBRR0H 0xC5
 #define TWINT_BIT 0x80
+#define A_PINC 0x26
+#define A_DDRC 0x27
+#define A_PORTC 0x28
+#define MAX_FAULTS 8
 
 static avr_t *avr;
 static int raw_twi;               /* --raw-twi: keep simavr 1.6's TWI quirks */
@@ -69,6 +96,7 @@ static volatile sig_atomic_t stop_requested;
 static uint8_t reg[128];
 static int who = 0x71;            /* -1: no device answers at 0x68 */
 static int selected, reg_index_pending, ptr;
+static int selected_ak;
 static int addr_phase_write;      /* the last TWI byte sent was SLA+W */
 static avr_irq_t *twi_in, *int_pin;
 static int pin_level;
@@ -80,6 +108,35 @@ static int16_t temp_count;
 static FILE *log_file;
 static avr_cycle_count_t sample_cycles;
 static uint32_t last_rate_hz;
+
+/* ---- faults -------------------------------------------------------------------- */
+enum { F_INT_SILENT, F_BROWNOUT, F_NACK, F_SDA_STUCK };
+static const char *fault_names[] = {"int-silent", "brownout", "nack", "sda-stuck"};
+typedef struct {
+    int kind;
+    uint64_t start_us, end_us;          /* simulated µs */
+    uint64_t released_us;               /* sda-stuck: when SDA went high again (0: not yet) */
+    int active;
+} fault_t;
+static fault_t faults[MAX_FAULTS];
+static int n_faults;
+static avr_irq_t *sda_pin, *scl_pin;
+static int scl_level = 1;
+static uint64_t scl_pulses, scl_pulses_in_faults;
+
+static uint64_t now_us(void) { return avr->cycle / (F_CPU_HZ / 1000000u); }
+
+static int fault_active(int kind)
+{
+    int i;
+    for (i = 0; i < n_faults; ++i)
+        if (faults[i].kind == kind && faults[i].active)
+            return 1;
+    return 0;
+}
+
+static avr_cycle_count_t fault_start(avr_t *a, avr_cycle_count_t when, void *param);
+static avr_cycle_count_t fault_end(avr_t *a, avr_cycle_count_t when, void *param);
 
 static uint64_t xorshift(void)
 {
@@ -140,6 +197,85 @@ static void sensor_write(uint8_t value)
     ptr = (ptr + 1) & 0x7F;
 }
 
+/* ---- AK8963 model ----------------------------------------------------------------- */
+static int ak_present = 1;
+static uint8_t ak_reg[0x13];
+static uint8_t ak_asa[3] = {176, 177, 165};
+static int ak_ptr, ak_index_pending;
+static int16_t ak_field[3] = {120, -240, 310};   /* counts, about 18, -36, 46 uT */
+static uint64_t mag_samples;
+static unsigned mag_hofl_every;
+static FILE *mag_log;
+
+static void ak_reset(void)
+{
+    memset(ak_reg, 0, sizeof ak_reg);
+    ak_reg[0x00] = 0x48;                        /* WIA */
+    ak_reg[0x01] = 0x9A;                        /* INFO */
+}
+
+static int ak_visible(void)
+{
+    return ak_present && (reg[0x37] & 0x02);    /* behind the MPU's bypass switch */
+}
+
+static uint8_t ak_read(void)
+{
+    uint8_t r = (uint8_t)ak_ptr;
+    uint8_t v = 0;
+    if (r < sizeof ak_reg)
+        v = ak_reg[r];
+    if (r >= 0x10 && r <= 0x12)                 /* fuse ROM: only in fuse access mode */
+        v = (ak_reg[0x0A] & 0x0F) == 0x0F ? ak_asa[r - 0x10] : 0;
+    if (r == 0x09)                              /* ST2 read: the read cycle is over */
+        ak_reg[0x02] &= (uint8_t)~0x03;
+    ak_ptr = (ak_ptr + 1) % 0x13;
+    return v;
+}
+
+static void ak_write(uint8_t value)
+{
+    uint8_t r = (uint8_t)ak_ptr;
+    if (r == 0x0A)
+        ak_reg[0x0A] = value & 0x1F;
+    else if (r == 0x0B && (value & 0x01))
+        ak_reset();                             /* CNTL2.SRST */
+    else if (r == 0x0C)
+        ak_reg[0x0C] = value & 0x40;
+    ak_ptr = (ak_ptr + 1) % 0x13;
+}
+
+static avr_cycle_count_t ak_tick(avr_t *a, avr_cycle_count_t when, void *param)
+{
+    int i;
+    int16_t h[3];
+    uint8_t st2;
+    (void)param;
+    if (ak_present && (ak_reg[0x0A] & 0x0F) == 0x06) {      /* continuous mode 2, 100 Hz */
+        for (i = 0; i < 3; ++i) {
+            ak_field[i] = (int16_t)(ak_field[i] + (int)(xorshift() % 41) - 20);
+            h[i] = ak_field[i];
+        }
+        st2 = (ak_reg[0x0A] & 0x10) ? 0x10 : 0x00;           /* BITM follows CNTL1.BIT */
+        if (mag_hofl_every && (mag_samples + 1) % mag_hofl_every == 0)
+            st2 |= 0x08;                                     /* HOFL */
+        for (i = 0; i < 3; ++i) {
+            ak_reg[0x03 + 2 * i] = (uint8_t)((uint16_t)h[i] & 0xFF);
+            ak_reg[0x04 + 2 * i] = (uint8_t)((uint16_t)h[i] >> 8);
+        }
+        ak_reg[0x09] = st2;
+        if (ak_reg[0x02] & 0x01)
+            ak_reg[0x02] |= 0x02;                            /* DOR: the last was not read */
+        ak_reg[0x02] |= 0x01;                                /* DRDY */
+        if (mag_log)
+            fprintf(mag_log, "%llu %llu %d %d %d %u\n", (unsigned long long)mag_samples,
+                    (unsigned long long)(a->cycle / (F_CPU_HZ / 1000000u)), h[0], h[1], h[2],
+                    st2);
+        ++mag_samples;
+    }
+    return when + F_CPU_HZ / 100u;
+}
+
 /* Internal rate 1 kHz when 0 < DLPF_CFG < 7 (and FCHOICE_B = 0), else 8 kHz. */
 static uint32_t sample_rate_hz(void)
 {
@@ -187,7 +323,7 @@ static avr_cycle_count_t sample_tick(avr_t *a, avr_cycle_count_t when, void *par
                 c[0], c[1], c[2], c[3], c[4], c[5], c[6]);
     ++samples_made;
     reg[0x3A] |= 0x01;
-    if (reg[0x38] & 0x01) {
+    if ((reg[0x38] & 0x01) && !fault_active(F_INT_SILENT)) {
         set_pin(1);
         if (!(reg[0x37] & 0x20))
             avr_cycle_timer_register_usec(a, 50, pulse_end, NULL);
@@ -203,10 +339,18 @@ static void twi_hook(avr_irq_t *irq, uint32_t value, void *param)
     (void)irq; (void)param;
     m.u.v = value;
     if (m.u.twi.msg & TWI_COND_STOP)
-        selected = 0;
+        selected = selected_ak = 0;
     if (m.u.twi.msg & TWI_COND_START) {
-        selected = 0;
+        selected = selected_ak = 0;
         addr_phase_write = !(m.u.twi.addr & 1);
+        if (fault_active(F_NACK) || fault_active(F_SDA_STUCK))
+            return;                                 /* nobody acknowledges */
+        if ((m.u.twi.addr >> 1) == AK_ADDR && ak_visible()) {
+            selected = selected_ak = m.u.twi.addr;
+            ak_index_pending = !(m.u.twi.addr & 1);
+            avr_raise_irq(twi_in, avr_twi_irq_msg(TWI_COND_ACK, selected, 1));
+            return;
+        }
         if (who >= 0 && (m.u.twi.addr >> 1) == MPU_ADDR) {
             selected = m.u.twi.addr;
             reg_index_pending = !(m.u.twi.addr & 1);
@@ -218,6 +362,21 @@ static void twi_hook(avr_irq_t *irq, uint32_t value, void *param)
     }
     if (!selected)
         return;
+    if (selected_ak) {
+        if (m.u.twi.msg & TWI_COND_WRITE) {
+            addr_phase_write = 0;
+            avr_raise_irq(twi_in, avr_twi_irq_msg(TWI_COND_ACK, selected, 1));
+            if (ak_index_pending) {
+                ak_ptr = m.u.twi.data % 0x13;
+                ak_index_pending = 0;
+            } else {
+                ak_write(m.u.twi.data);
+            }
+        }
+        if (m.u.twi.msg & TWI_COND_READ)
+            avr_raise_irq(twi_in, avr_twi_irq_msg(TWI_COND_READ, selected, ak_read()));
+        return;
+    }
     if (m.u.twi.msg & TWI_COND_WRITE) {
         addr_phase_write = 0;
         avr_raise_irq(twi_in, avr_twi_irq_msg(TWI_COND_ACK, selected, 1));
@@ -250,6 +409,81 @@ static void twcr_write_hook(avr_t *a, avr_io_addr_t addr, uint8_t v, void *param
     (void)param;
     if (!raw_twi && (v & TWINT_BIT))
         a->data[addr] &= (uint8_t)~TWINT_BIT;
+}
+
+static avr_cycle_count_t fault_start(avr_t *a, avr_cycle_count_t when, void *param)
+{
+    fault_t *f = param;
+    (void)a; (void)when;
+    f->active = 1;
+    if (f->kind == F_BROWNOUT) {
+        sensor_reset();                         /* power-on register values */
+        set_pin(0);
+        f->active = 0;
+    } else if (f->kind == F_SDA_STUCK) {
+        avr_raise_irq(sda_pin, 0);
+    }
+    if (f->kind != F_BROWNOUT && f->end_us > f->start_us)
+        avr_cycle_timer_register_usec(avr, (uint32_t)(f->end_us - f->start_us), fault_end, f);
+    return 0;
+}
+
+static avr_cycle_count_t fault_end(avr_t *a, avr_cycle_count_t when, void *param)
+{
+    fault_t *f = param;
+    (void)a; (void)when;
+    if (f->kind != F_SDA_STUCK)                 /* SDA: released by the next SCL pulse */
+        f->active = 0;
+    return 0;
+}
+
+/* SCL clocked by hand (TWI off): open drain, so high unless driven low as an output. */
+static void portc_watch(avr_t *a, avr_io_addr_t addr, uint8_t v, void *param)
+{
+    uint8_t ddr = addr == A_DDRC ? v : a->data[A_DDRC];
+    uint8_t port = addr == A_PORTC ? v : a->data[A_PORTC];
+    int level = (ddr & 0x20) ? ((port >> 5) & 1) : 1;
+    int i;
+    (void)param;
+    if (level && !scl_level) {                  /* a pulse completed */
+        ++scl_pulses;
+        for (i = 0; i < n_faults; ++i) {
+            fault_t *f = &faults[i];
+            if (f->kind != F_SDA_STUCK || !f->active)
+                continue;
+            ++scl_pulses_in_faults;
+            if (now_us() >= f->end_us) {        /* the stuck slave finished its byte */
+                f->active = 0;
+                f->released_us = now_us();
+                avr_raise_irq(sda_pin, 1);
+            }
+        }
+    }
+    scl_level = level;
+    if (fault_active(F_SDA_STUCK))              /* the slave wins over the pull-up */
+        avr_raise_irq(sda_pin, 0);
+}
+
+static int parse_fault(const char *text)
+{
+    char name[32];
+    double start_ms = 0, dur_ms = 0;
+    int k, got;
+    fault_t *f;
+    if (n_faults == MAX_FAULTS)
+        return 0;
+    got = sscanf(text, "%31[a-z-]:%lf:%lf", name, &start_ms, &dur_ms);
+    if (got < 2 || start_ms < 0 || dur_ms < 0)
+        return 0;
+    for (k = 0; k < 4 && strcmp(name, fault_names[k]); ++k)
+        ;
+    if (k == 4 || (k != F_BROWNOUT && got < 3))
+        return 0;
+    f = &faults[n_faults++];
+    f->kind = k;
+    f->start_us = (uint64_t)(start_ms * 1000.0);
+    f->end_us = f->start_us + (uint64_t)(dur_ms * 1000.0);
+    return 1;
 }
 
 /* ---- UART <-> pty or file ------------------------------------------------------- */
@@ -362,12 +596,32 @@ int main(int argc, char **argv)
         else if (!strcmp(a, "--samples")) samples = v;
         else if (!strcmp(a, "--log")) log_path = v;
         else if (!strcmp(a, "--wait-open")) wait_open = atof(v);
+        else if (!strcmp(a, "--mag")) ak_present = strcmp(v, "none") != 0;
+        else if (!strcmp(a, "--mag-log")) {
+            if (!(mag_log = fopen(v, "w"))) { perror(v); return 2; }
+        }
+        else if (!strcmp(a, "--mag-hofl-every")) mag_hofl_every = (unsigned)atoi(v);
+        else if (!strcmp(a, "--asa")) {
+            unsigned x, y, z;
+            if (sscanf(v, "%u,%u,%u", &x, &y, &z) != 3 || x > 255 || y > 255 || z > 255) {
+                fprintf(stderr, "mpu_board: bad --asa %s (X,Y,Z, 0..255 each)\n", v);
+                return 2;
+            }
+            ak_asa[0] = (uint8_t)x; ak_asa[1] = (uint8_t)y; ak_asa[2] = (uint8_t)z;
+        }
+        else if (!strcmp(a, "--fault")) {
+            if (!parse_fault(v)) {
+                fprintf(stderr, "mpu_board: bad --fault %s (KIND:START_MS[:DURATION_MS], KIND "
+                        "int-silent brownout nack sda-stuck, at most %d)\n", v, MAX_FAULTS);
+                return 2;
+            }
+        }
         else { fprintf(stderr, "mpu_board: unknown option %s\n", a); return 2; }
     }
     if (!elf || (!link && !uart_out) || !(seconds > 0)) {
         fprintf(stderr, "usage: mpu_board --elf FW.elf (--link PATH | --uart-out FILE) "
                 "[--seconds S] [--who 0x71|none] [--seed N] [--samples FILE] [--log FILE] "
-                "[--fast]\n");
+                "[--fast] [--fault KIND:START_MS[:DURATION_MS]]...\n");
         return 2;
     }
     if (samples) {
@@ -386,6 +640,9 @@ int main(int argc, char **argv)
         fclose(f);
     }
     temp_count = (int16_t)(who == 0x68 ? -3920 : 1335);     /* about 25 degC */
+    if (who != 0x71 && who != 0x73)
+        ak_present = 0;                                     /* MPU-6500/6050: no AK8963 */
+    ak_reset();
     if (log_path && !(log_file = fopen(log_path, "w"))) { perror(log_path); return 2; }
     obuf = malloc(ocap);
 
@@ -415,10 +672,20 @@ int main(int argc, char **argv)
                             twi_status_hook, NULL);
     avr_register_io_write(avr, A_TWCR, twcr_write_hook, NULL);
     int_pin = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 2);
+    sda_pin = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('C'), 4);
+    scl_pin = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('C'), 5);
+    avr_raise_irq(sda_pin, 1);                  /* the board's pull-ups */
+    avr_raise_irq(scl_pin, 1);
+    avr_register_io_write(avr, A_DDRC, portc_watch, NULL);
+    avr_register_io_write(avr, A_PORTC, portc_watch, NULL);
+    for (i = 0; i < n_faults; ++i)
+        avr_cycle_timer_register_usec(avr, (uint32_t)(faults[i].start_us ? faults[i].start_us : 1),
+                                      fault_start, &faults[i]);
     sensor_reset();
     pin_level = !active_level();
     avr_raise_irq(int_pin, pin_level);
     avr_cycle_timer_register_usec(avr, 1000, sample_tick, NULL);
+    avr_cycle_timer_register_usec(avr, 10000, ak_tick, NULL);
 
     signal(SIGINT, on_signal);
     signal(SIGTERM, on_signal);
@@ -478,17 +745,30 @@ int main(int argc, char **argv)
                "\"bursts_from_0x3b\": %llu, \"twi_register_writes\": %llu, "
                "\"who_am_i\": %d, \"SMPLRT_DIV\": %u, \"CONFIG\": %u, \"GYRO_CONFIG\": %u, "
                "\"ACCEL_CONFIG\": %u, \"ACCEL_CONFIG2\": %u, \"INT_PIN_CFG\": %u, "
-               "\"INT_ENABLE\": %u, \"PWR_MGMT_1\": %u}\n",
+               "\"INT_ENABLE\": %u, \"PWR_MGMT_1\": %u, \"scl_pulses\": %llu, "
+               "\"scl_pulses_in_faults\": %llu, \"ak_present\": %d, \"ak_cntl1\": %u, "
+               "\"mag_samples\": %llu, \"faults\": [",
                state == cpu_Crashed ? "crashed" : (state == cpu_Done ? "done" : "running"),
                sim_s, wall_s, (unsigned long long)samples_made, last_rate_hz,
                (unsigned long long)uart_bytes, (unsigned long long)uart_dropped, olen, baud,
                ubrr, u2x, scl, (unsigned long long)int_status_reads,
                (unsigned long long)bursts_0x3b, (unsigned long long)twi_writes, who,
                reg[0x19], reg[0x1A], reg[0x1B], reg[0x1C], reg[0x1D], reg[0x37], reg[0x38],
-               reg[0x6B]);
+               reg[0x6B], (unsigned long long)scl_pulses,
+               (unsigned long long)scl_pulses_in_faults, ak_present, ak_reg[0x0A],
+               (unsigned long long)mag_samples);
+        for (i = 0; i < n_faults; ++i)
+            printf("%s{\"kind\": \"%s\", \"start_us\": %llu, \"end_us\": %llu, "
+                   "\"released_us\": %llu, \"active\": %d}", i ? ", " : "",
+                   fault_names[faults[i].kind], (unsigned long long)faults[i].start_us,
+                   (unsigned long long)faults[i].end_us,
+                   (unsigned long long)faults[i].released_us, faults[i].active);
+        printf("]}\n");
     }
     if (log_file)
         fclose(log_file);
+    if (mag_log)
+        fclose(mag_log);
     if (link)
         unlink(link);
     return state == cpu_Crashed ? 1 : 0;
