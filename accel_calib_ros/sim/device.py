@@ -10,6 +10,7 @@ that starts at an arbitrary value and wraps. ``SIGUSR1`` unplugs the device for
 """
 
 import argparse
+import contextlib
 import errno
 import math
 import os
@@ -325,14 +326,22 @@ class Pty:
         os.set_blocking(self.master, False)
         self.path = os.ttyname(self.slave)
         self.link = link
-        if link:
-            tmp = f'{link}.tmp{os.getpid()}'
+        if link:        # a new link under a fresh name (never an existing file), renamed
+            from ..dataio.atomic import temp_name
+            folder, name = os.path.split(os.path.abspath(link))
+            for _ in range(100):
+                tmp = os.path.join(folder, temp_name(folder, name, os.urandom(4).hex()))
+                try:
+                    os.symlink(self.path, tmp)
+                    break
+                except FileExistsError:
+                    continue
             try:
-                os.unlink(tmp)
-            except FileNotFoundError:
-                pass
-            os.symlink(self.path, tmp)
-            os.replace(tmp, link)
+                os.replace(tmp, link)
+            except BaseException:
+                with contextlib.suppress(OSError):
+                    os.unlink(tmp)
+                raise
 
     def write(self, data):
         """Write what the pty takes; return the number of bytes dropped (buffer full)."""
@@ -466,13 +475,14 @@ def run(args):
 
 def _write_truth(path, truth):
     import yaml
-    tmp = f'{path}.tmp{os.getpid()}'
+    from ..core.errors import InputError
+    from ..dataio.atomic import atomic_write_text
     try:
-        with open(tmp, 'w') as f:
-            yaml.safe_dump(truth, f, sort_keys=False)
-        os.replace(tmp, path)
+        atomic_write_text(path, yaml.safe_dump(truth, sort_keys=False))
+    except InputError as err:
+        raise DeviceError(str(err)) from None
     except OSError as err:
-        raise DeviceError(f'cannot write {path}: {err.strerror}')
+        raise DeviceError(f'cannot write {path}: {err.strerror or err}') from None
 
 
 def main(argv=None):
