@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 
-from .common import add_data_args, check_output, check_suffix
+from .common import add_data_args, check_output, check_suffix, STDOUT, time_unit, UsageError
 from ..core.errors import InputError
 from ..core.samples import Samples
 
@@ -15,24 +15,31 @@ def add_arguments(p):
     """Add the options of ``apply`` to its parser."""
     p.add_argument('calibration', help='calibration YAML from "accel-calib fit"')
     add_data_args(p)
-    p.add_argument('-o', '--output', required=True, help='corrected CSV to write')
+    p.add_argument('-o', '--output', required=True,
+                   help='corrected CSV to write ("-": standard output, the summary then goes '
+                        'to stderr)')
     p.add_argument('--json', action='store_true', help='print one JSON object')
 
 
 def run(args, out):
     """Run ``accel-calib apply``; return the exit status."""
-    check_output(args.output, args.calibration, args.data)
+    if args.output == STDOUT and args.json:
+        raise UsageError('accel-calib: apply -o - writes the CSV to standard output: '
+                         'leave out --json')
+    check_output(args.output, args.calibration, args.data, stdout=True)
     from ..dataio.calibration_file import load_calibration
     from ..dataio.recording import csv_writer, iter_samples
     from .progress import Progress
-    check_suffix(args.output, ('.csv',), 'apply -o')
+    if args.output != STDOUT:
+        check_suffix(args.output, ('.csv',), 'apply -o')
     cal = load_calibration(args.calibration)
     is_csv = args.data.lower().endswith('.csv') and os.path.isfile(args.data)
     # Streamed: one piece of the recording in memory at a time, whatever its length.
     with Progress(os.path.getsize(args.data) if is_csv else None, 'apply',
                   'B' if is_csv else 'rows') as bar:
         pieces = iter_samples(args.data, imu_topic=args.imu_topic, temp_topic=args.temp_topic,
-                              on_read=bar.update if is_csv else None)
+                              on_read=bar.update if is_csv else None,
+                              time_unit=time_unit(args))
         first = next(pieces)
         if cal.thermal is not None and cal.thermal.usable and first.temp is None:
             print('accel-calib: warning: calibration has temperature tables but the data '
@@ -74,7 +81,9 @@ def run(args, out):
     if args.json:
         out(summary)
     else:
-        print(f'corrected {n} samples -> {args.output} '
+        print(f'corrected {n} samples -> '
+              f'{"standard output" if args.output == STDOUT else args.output} '
               f'(mean |a| {sum_before / n:.4f} -> {sum_after / n:.4f} m/s²'
-              + (', gyro bias subtracted' if gyro_subtracted else '') + ')')
+              + (', gyro bias subtracted' if gyro_subtracted else '') + ')',
+              file=sys.stderr if args.output == STDOUT else sys.stdout)
     return 0

@@ -9,6 +9,7 @@ command.
 import argparse
 import math
 import os
+import stat
 
 
 G0 = 9.80665
@@ -36,6 +37,7 @@ def add_data_args(p):
                                 '(.mcap, .db3 or bag directory)')
     p.add_argument('--imu-topic', help='sensor_msgs/Imu topic in a bag (default: the only one)')
     p.add_argument('--temp-topic', help='sensor_msgs/Temperature topic in a bag')
+    add_time_unit_arg(p)
 
 
 def add_window_args(p):
@@ -127,7 +129,7 @@ def load_data(args):
     size = os.path.getsize(args.data) if os.path.isfile(args.data) else None
     with Progress(size, 'read', 'B') as bar:     # shown only for a long read on a terminal
         return load_samples(args.data, imu_topic=args.imu_topic, temp_topic=args.temp_topic,
-                            on_read=bar.update)
+                            on_read=bar.update, time_unit=time_unit(args))
 
 
 def same_file(a, b):
@@ -143,16 +145,14 @@ def same_file(a, b):
     return os.path.realpath(a) == os.path.realpath(b)
 
 
-def check_output(output, *inputs, what='output'):
-    """Raise UsageError when ``output`` is one of ``inputs`` (it would destroy it)."""
-    if not output:
-        return
-    if os.path.isdir(os.path.expanduser(output)):
-        raise UsageError(f'accel-calib: {what} {output} is a directory')
-    for path in inputs:
-        if path and same_file(output, path):
-            raise UsageError(f'accel-calib: {what} {output} is the input {path}; '
-                             'writing it would destroy the input: choose another name')
+def check_output(output, *inputs, what='output', stdout=False, folder=False):
+    """
+    Refuse (UsageError, exit 2) an output that would destroy an input or a foreign file.
+
+    See :func:`check_output_path`; ``stdout`` allows ``-`` (standard output), ``folder``
+    an output folder.
+    """
+    return check_output_path(output, *inputs, what=what, stdout=stdout, folder=folder)
 
 
 def check_suffix(path, suffixes, what):
@@ -190,3 +190,210 @@ def check_not_empty(args):
         value = getattr(args, name, None)
         if isinstance(value, str) and not value.strip():
             raise UsageError(f'accel-calib: {option} is an empty name; give a file name')
+
+
+# -- the output border (issue 16) ----------------------------------------------------------
+
+MAX_MESSAGE = 200
+"""Longest error line printed, characters (a message quoting a huge input is cut)."""
+MAX_REFUSAL = 500
+"""Longest refusal line (``cannot calibrate: ...``): its own words, the poses to add."""
+MAX_WORD = 48
+"""A longer word (a path, a quoted cell) is shortened first when a line is too long."""
+EXPANDED_PATHS = ('data', 'calibration', 'output', 'truth', 'report', 'plot', 'record', 'db',
+                  'truth_out', 'link', 'port', 'history', 'noise_from', 'poses')
+"""File-name arguments whose leading ``~`` / ``~user`` is expanded (or refused)."""
+STDOUT = '-'
+"""The output name meaning standard output (where a command writes text)."""
+
+
+def _short(word, width=MAX_WORD):
+    if len(word) <= width:
+        return word
+    tail = width // 2
+    return word[:width - tail - 1] + '…' + word[-tail:]
+
+
+def message_line(text, limit=MAX_MESSAGE):
+    """
+    Return ``text`` as one printable line of at most ``limit`` characters.
+
+    Control, bidi and other invisible characters are shown escaped. A longer text has its
+    long words (paths, quoted data) shortened in their middle first, then, if still too
+    long, keeps its head and its end (where the advice usually is), joined by `` … ``.
+    """
+    text = ''.join(c if c.isprintable() else c.encode('unicode_escape').decode('ascii')
+                   for c in str(text))
+    if len(text) <= limit:
+        return text
+    text = ' '.join(_short(word) for word in text.split(' '))
+    if len(text) <= limit:
+        return text
+    tail = max(limit // 3, 20)
+    return text[:limit - tail - 3] + ' … ' + text[-tail:]
+
+
+def expand_user(text, option):
+    """
+    Expand a leading ``~`` or ``~user`` of a file name; refuse an unknown user.
+
+    :param text: the name as given (returned unchanged unless it starts with ``~``).
+    :param option: the option's name, for the message.
+    :raises UsageError: ``~user`` names no user (a folder literally named ``~user`` is
+        never created).
+    """
+    if not isinstance(text, str) or not text.startswith('~'):
+        return text
+    expanded = os.path.expanduser(text)
+    if expanded.startswith('~'):
+        user = text[1:].split(os.sep, 1)[0]
+        who = f'no user {user!r}' if user else 'no home folder'
+        raise UsageError(f'accel-calib: {option} {text}: there is {who} to expand '
+                         f'~{user} to (write ./{text.split(os.sep, 1)[0]} for a folder of '
+                         'that name)')
+    return expanded
+
+
+def expand_paths(args):
+    """Expand ``~`` in every file-name argument of ``args`` (in place), or refuse."""
+    options = dict(PATH_OPTIONS, history='--history', noise_from='--noise-from',
+                   poses='--poses')
+    for name in EXPANDED_PATHS:
+        value = getattr(args, name, None)
+        if isinstance(value, str) and value:
+            setattr(args, name, expand_user(value, options.get(name, name)))
+
+
+def input_folders(path):
+    """
+    Return the folders an input ``path`` owns: a bag directory, or the bag of a storage file.
+
+    Nothing may be written inside them (``fit BAG -o BAG/metadata.yaml`` would destroy it).
+    """
+    if not path or path == STDOUT:
+        return []
+    path = os.fspath(path)
+    if os.path.isdir(path):
+        return [os.path.realpath(path)]
+    folder = os.path.dirname(os.path.realpath(path))
+    if path.lower().endswith(('.mcap', '.db3')) and \
+            os.path.isfile(os.path.join(folder, 'metadata.yaml')):
+        return [folder]
+    return []
+
+
+def _inside(target, folder):
+    try:
+        return os.path.commonpath([target, folder]) == folder
+    except ValueError:
+        return False
+
+
+def check_output_path(output, *inputs, what='output', stdout=False, folder=False):
+    """
+    Check the border of every file a command writes (exit status 2, one line).
+
+    Refuses an output that is an input, lies inside an input folder or bag, exists but
+    is not a regular file (device, FIFO, socket, directory), or is reached through a
+    symbolic link another user owns (the rules of :func:`dataio.atomic.output_target`).
+
+    :param output: the output name as given (``~`` expanded), or None (nothing to check).
+    :param inputs: the command's inputs (files or folders; None entries are skipped).
+    :param what: the option, for the message (``-o``, ``--plot``, ...).
+    :param stdout: ``-`` means standard output here (else it is a usage error).
+    :param folder: the output is a folder (``diagnose --report``): it may exist as one.
+    :return: the real path that will be written (``-`` for standard output), or None.
+    :raises UsageError: the output must not be written.
+    """
+    if output is None:
+        return None
+    output = os.fspath(output)
+    if output == STDOUT:
+        if stdout:
+            return STDOUT
+        raise UsageError(f'accel-calib: {what} -: this output cannot go to standard output; '
+                         'give a file name')
+    from ..dataio.atomic import output_target, UnsafeOutput
+    try:
+        target = output_target(output, folder=folder)
+    except UnsafeOutput as err:
+        raise UsageError(f'accel-calib: {what} {err}') from None
+    except OSError as err:
+        raise UsageError(f'accel-calib: {what} {output}: {err.strerror or err}') from None
+    for path in inputs:
+        if not path or path == STDOUT:
+            continue
+        if same_file(output, path) or same_file(target, path):
+            raise UsageError(f'accel-calib: {what} {output} is the input {path}; '
+                             'writing it would destroy the input: choose another name')
+        for inside in input_folders(path):
+            if _inside(target, inside):
+                raise UsageError(f'accel-calib: {what} {output} lies inside the input {inside}'
+                                 '; writing there could destroy it: choose a path outside it')
+    return target
+
+
+def sensor_id(text):
+    """Argparse type: a sensor id, normalised (stripped, NFC) and checked (printable)."""
+    from ..core.errors import InputError
+    from ..dataio.sensor_id import normalise_sensor_id
+    try:
+        return normalise_sensor_id(text)
+    except InputError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
+TIME_UNITS = ('s', 'ms', 'us', 'ns')
+"""Units the ``t`` column of a CSV may be given in (--time-unit)."""
+
+
+def add_time_unit_arg(p):
+    """Add ``--time-unit`` (the unit of a CSV's ``t`` column) to parser ``p``."""
+    p.add_argument('--time-unit', choices=TIME_UNITS, default=None,
+                   help='unit of the t column of a CSV (default s, the spec; a spacing no '
+                        'IMU has, 1 Hz .. 100 kHz, is refused with the unit it looks like)')
+
+
+def time_unit(args):
+    """Return the CSV time unit of ``args`` ('s' unless --time-unit says otherwise)."""
+    return getattr(args, 'time_unit', None) or 's'
+
+
+def check_link_output(link, *inputs, what='--link'):
+    """
+    Check the border of a symbolic link a command maintains (``simulate-device --link``).
+
+    The link itself is replaced (never what it points to), so: no input may be it or lie
+    under it, an existing entry must be a link, and a link in a shared folder must be the
+    user's own; the folders on the way follow the rules of :func:`check_output_path`.
+
+    :raises UsageError: the link must not be made or replaced there.
+    """
+    if link is None:
+        return
+    for path in inputs:
+        if path and same_file(link, path):
+            raise UsageError(f'accel-calib: {what} {link} is the input {path}; '
+                             'writing it would destroy the input: choose another name')
+    from ..dataio.atomic import output_target, UnsafeOutput
+    parent = os.path.dirname(os.path.abspath(link))
+    try:
+        folder = output_target(parent, folder=True)
+        st = os.lstat(link) if os.path.lexists(link) else None
+    except UnsafeOutput as err:
+        raise UsageError(f'accel-calib: {what} {err}') from None
+    except OSError as err:
+        raise UsageError(f'accel-calib: {what} {link}: {err.strerror or err}') from None
+    if st is not None and not stat.S_ISLNK(st.st_mode):
+        raise UsageError(f'accel-calib: {what} {link} exists and is not a symlink: replacing '
+                         'it would destroy it (choose a new name)')
+    if st is not None and st.st_uid != os.geteuid() and \
+            os.stat(folder).st_mode & (stat.S_ISVTX | stat.S_IWOTH):
+        raise UsageError(f'accel-calib: {what} {link}: the link belongs to another user '
+                         f'(uid {st.st_uid}) in the shared folder {folder}; choose a new name')
+    target = os.path.join(folder, os.path.basename(link))
+    for path in inputs:
+        for inside in input_folders(path):
+            if _inside(target, inside):
+                raise UsageError(f'accel-calib: {what} {link} lies inside the input {inside}; '
+                                 'writing there could destroy it: choose a path outside it')
