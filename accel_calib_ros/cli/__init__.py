@@ -129,7 +129,8 @@ def _main(argv):
 
     args = None
     try:
-        argv = sys.argv[1:] if argv is None else list(argv)
+        argv = sys.argv[1:] if argv is None else [os.fspath(a) if isinstance(a, os.PathLike)
+                                                  else a for a in argv]
         command = argv[0] if argv and argv[0] in COMMANDS else None
         args = build_parser(command or '').parse_args(argv)
         check_not_empty(args)

@@ -17,7 +17,8 @@ What may be written (the same rules for every command and node that writes a fil
   someone else is refused, so nobody can make this process replace a file on their behalf;
 - in a shared folder (sticky or world-writable, like ``/tmp``) an existing file owned by
   another user is refused (the kernel's ``protected_symlinks`` and ``protected_regular``
-  rules, applied here whatever the system's settings).
+  rules, applied here whatever the system's settings), and so is any existing file this
+  user may not write (a rename would bypass its permissions).
 
 Temporary names fit in NAME_MAX (a 255-byte final name works), are created with
 ``O_EXCL | O_NOFOLLOW`` (never through a link) and start with a dot so they stay out of
@@ -67,10 +68,11 @@ def _check_link(shown, link, link_stat, folder):
     shared = _shared(os.stat(folder))
     if link_stat.st_uid == 0 and not shared:
         return
-    where = f'the shared folder {folder}' if shared else folder
-    raise UnsafeOutput(f'{shown}: the symbolic link {link} in {where} belongs to another user '
-                       f'(uid {link_stat.st_uid}); following it could replace someone '
-                       "else's file: write to the real path, or remove the link")
+    which = '' if link == os.path.abspath(shown) else f' {link}'
+    where = ' in a shared folder' if shared else ''
+    raise UnsafeOutput(f'{shown}: the symbolic link{which}{where} belongs to another user '
+                       f'(uid {link_stat.st_uid}): following it could replace their file; '
+                       'write to the real path')
 
 
 def output_target(path, folder=False):
@@ -145,8 +147,21 @@ def output_target(path, folder=False):
         dir_stat = os.stat(folder)
         if _shared(dir_stat) and st.st_uid not in (os.geteuid(), dir_stat.st_uid):
             raise UnsafeOutput(f'{shown}: the file belongs to another user (uid {st.st_uid}) '
-                               f'in the shared folder {folder}; refusing to replace it')
+                               'in a shared folder; refusing to replace it')
+        if not _writable(current):
+            raise UnsafeOutput(f'{shown}: the file is read-only for this user; refusing to '
+                               'replace it (a rename would bypass its permissions)')
     return current
+
+
+def _writable(path):
+    """Whether this process may write the existing file ``path`` (effective ids)."""
+    try:
+        if os.access in os.supports_effective_ids:
+            return os.access(path, os.W_OK, effective_ids=True, follow_symlinks=False)
+        return os.access(path, os.W_OK)
+    except (OSError, NotImplementedError):
+        return True
 
 
 def _name_max(directory):
