@@ -12,6 +12,7 @@ from accel_calib_ros.core.model import Calibration
 from accel_calib_ros.core.simulate import mpu9250_like, simulate_session
 from accel_calib_ros.dataio.history import History, HistoryDamaged
 from accel_calib_ros.dataio.sensor_id import normalise_sensor_id
+from damage_cases import DAMAGE, damage as _damage
 import numpy as np
 import peer_data
 import pytest
@@ -171,54 +172,6 @@ def test_a_schema_1_database_is_read_as_is_and_migrated_on_write(tmp_path, capsy
     assert code == 0 and '4 windows, 1 calibrations' in out
     with sqlite3.connect(path) as db:
         assert db.execute("SELECT value FROM meta WHERE key = 'schema'").fetchone() == ('2',)
-
-
-def _damage(path, how):
-    """Damage a copy of a good history database in one of the ways users hit."""
-    db = sqlite3.connect(path)
-    db.execute('PRAGMA wal_checkpoint(TRUNCATE)')
-    db.execute('PRAGMA journal_mode = DELETE')
-    statements = {
-        'bad_json': "UPDATE calibrations SET T = '[1, 2'",
-        'wrong_size_T': "UPDATE calibrations SET T = '[1, 2, 3]'",
-        'text_time': "UPDATE calibrations SET time_s = 'yesterday'",
-        'huge_time': 'UPDATE calibrations SET time_s = 1e300',
-        'text_window': "UPDATE windows SET mx = 'abc' WHERE id = 3",
-        'null_weight_text': "UPDATE windows SET weight = 'heavy' WHERE id = 2",
-        'bias_object': 'UPDATE calibrations SET bias = \'{"x": 1}\'',
-        'newer_schema': "UPDATE meta SET value = '9' WHERE key = 'schema'",
-        'no_schema_row': 'DELETE FROM meta',
-        'dropped_column': 'ALTER TABLE windows DROP COLUMN gz',
-    }
-    if how in statements:
-        db.execute(statements[how])
-        db.commit()
-    db.close()
-    if how.startswith('zero_page_'):
-        data = bytearray(open(path, 'rb').read())
-        size = int.from_bytes(data[16:18], 'big')
-        page = int(how.rsplit('_', 1)[1])
-        data[page * size:(page + 1) * size] = bytes(size)
-        open(path, 'wb').write(bytes(data))
-    elif how == 'foreign':
-        os.remove(path)
-        with sqlite3.connect(path) as db:
-            db.execute('CREATE TABLE meta (k TEXT, v TEXT)')
-            db.execute('CREATE TABLE other (x)')
-    elif how == 'rosbag_like':
-        os.remove(path)
-        with sqlite3.connect(path) as db:
-            db.execute('CREATE TABLE topics (id INTEGER, name TEXT)')
-    elif how == 'text':
-        open(path, 'w').write('{"not": "a database"}\n')
-    elif how == 'empty':
-        open(path, 'w').close()
-
-
-DAMAGE = ['bad_json', 'wrong_size_T', 'text_time', 'huge_time', 'text_window',
-          'null_weight_text', 'bias_object', 'newer_schema', 'no_schema_row', 'dropped_column',
-          'zero_page_0', 'zero_page_1', 'zero_page_2', 'zero_page_3', 'foreign',
-          'rosbag_like', 'text', 'empty']
 
 
 @pytest.fixture(scope='module')
