@@ -293,3 +293,12 @@ def test_listing_a_history_never_writes_it(tmp_path, capsys, good_db):
         os.mkdir(other) if how == 'directory' else os.mkfifo(other)
         code, _, err = run(capsys, 'history', '--db', other)
         assert code == 2 and words in err, err
+
+
+def test_sqlite_side_files_follow_the_same_rules(tmp_path, capsys, sessions):
+    """Side files (DB-wal, DB-shm, DB-journal) sqlite opens by name: no FIFO, no foreign link."""
+    db = tmp_path / 'h.sqlite'
+    os.mkfifo(tmp_path / 'h.sqlite-wal')
+    code, _, err = run(capsys, 'fit', sessions[0], '--history', db, '--sensor', 'imu0')
+    assert code == 2 and 'FIFO' in err, err
+    assert not db.exists()

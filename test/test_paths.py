@@ -315,3 +315,22 @@ def test_simulate_device_link_rules(tmp_path, capsys):
                        '0.01')
     assert code == 2 and 'another user' in err
     assert os.readlink(shared / 'imu0') == '/dev/null'
+
+
+def test_a_temp_file_swapped_under_the_writer_replaces_nothing(tmp_path):
+    """In a world-writable folder someone may rename the temp away: nothing is replaced."""
+    from accel_calib_ros.dataio.atomic import atomic_file, atomic_path
+    target = tmp_path / 'cal.yaml'
+    target.write_text('old')
+    with pytest.raises(UnsafeOutput, match='swapped'):
+        with atomic_path(target) as tmp:
+            os.remove(tmp)
+            with open(tmp, 'w') as f:
+                f.write('planted')
+    assert target.read_text() == 'old'
+    planted = [n for n in os.listdir(tmp_path) if n != 'cal.yaml']
+    assert len(planted) == 1                 # not ours: left where the other user put it
+    with atomic_file(target, 'w', encoding='utf-8') as f:       # written through its own fd
+        f.write('new')
+    assert target.read_text() == 'new'
+    assert sorted(os.listdir(tmp_path)) == sorted(['cal.yaml'] + planted)

@@ -11,6 +11,8 @@ import math
 import os
 import stat
 
+from ..dataio.formats import MAX_MESSAGE, message_line  # noqa: F401 - one line, capped
+
 
 G0 = 9.80665
 """Standard gravity, m/s² (the default of --gravity)."""
@@ -194,43 +196,13 @@ def check_not_empty(args):
 
 # -- the output border (issue 16) ----------------------------------------------------------
 
-MAX_MESSAGE = 200
-"""Longest error line printed, characters (a message quoting a huge input is cut)."""
 MAX_REFUSAL = 500
 """Longest refusal line (``cannot calibrate: ...``): its own words, the poses to add."""
-MAX_WORD = 48
-"""A longer word (a path, a quoted cell) is shortened first when a line is too long."""
 EXPANDED_PATHS = ('data', 'calibration', 'output', 'truth', 'report', 'plot', 'record', 'db',
                   'truth_out', 'link', 'port', 'history', 'noise_from', 'poses')
 """File-name arguments whose leading ``~`` / ``~user`` is expanded (or refused)."""
 STDOUT = '-'
 """The output name meaning standard output (where a command writes text)."""
-
-
-def _short(word, width=MAX_WORD):
-    if len(word) <= width:
-        return word
-    tail = width // 2
-    return word[:width - tail - 1] + '…' + word[-tail:]
-
-
-def message_line(text, limit=MAX_MESSAGE):
-    """
-    Return ``text`` as one printable line of at most ``limit`` characters.
-
-    Control, bidi and other invisible characters are shown escaped. A longer text has its
-    long words (paths, quoted data) shortened in their middle first, then, if still too
-    long, keeps its head and its end (where the advice usually is), joined by `` … ``.
-    """
-    text = ''.join(c if c.isprintable() else c.encode('unicode_escape').decode('ascii')
-                   for c in str(text))
-    if len(text) <= limit:
-        return text
-    text = ' '.join(_short(word) for word in text.split(' '))
-    if len(text) <= limit:
-        return text
-    tail = max(limit // 3, 20)
-    return text[:limit - tail - 3] + ' … ' + text[-tail:]
 
 
 def expand_user(text, option):

@@ -33,8 +33,8 @@ import stat
 
 from ..core.errors import InputError
 
-__all__ = ['atomic_path', 'atomic_write_bytes', 'atomic_write_text', 'output_target',
-           'UnsafeOutput']
+__all__ = ['atomic_file', 'atomic_path', 'atomic_write_bytes', 'atomic_write_text',
+           'output_target', 'UnsafeOutput']
 
 MAX_LINKS = 40
 """Symbolic links followed on one path at most (the kernel's own limit)."""
@@ -340,11 +340,8 @@ def atomic_write_bytes(path, data, make_dirs=False):
     :param make_dirs: create missing folders (removed again when the write fails).
     :raises UnsafeOutput: the path may not be written (see the module docstring).
     """
-    with atomic_path(path, make_dirs) as tmp:
-        with open(tmp, 'r+b') as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
+    with atomic_file(path, make_dirs=make_dirs) as f:
+        f.write(data)
 
 
 def atomic_write_text(path, text, encoding='utf-8', make_dirs=False):
@@ -360,11 +357,59 @@ def atomic_write_text(path, text, encoding='utf-8', make_dirs=False):
 
 
 @contextlib.contextmanager
+def _temporary(path, make_dirs):
+    """Yield (fd, temp path, target); replace the target on success, clean up on failure."""
+    target = output_target(path)
+    made, tmp, fd = [], None, None
+    try:
+        with signals_held():
+            if make_dirs:
+                made = make_parents(os.path.dirname(target))
+            fd, tmp = _create_temp(target)
+        mine = os.fstat(fd)
+        yield fd, tmp, target
+        st = os.lstat(tmp)
+        if (st.st_dev, st.st_ino) != (mine.st_dev, mine.st_ino):
+            tmp = None                         # not ours any more: leave it, replace nothing
+            raise UnsafeOutput(f'{path}: the temporary file was swapped by someone else; '
+                               'nothing written')
+        replace_into(tmp, target)
+    except BaseException:
+        _remove_quietly(tmp)
+        remove_made(made)
+        raise
+    finally:
+        if fd is not None:
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+
+@contextlib.contextmanager
+def atomic_file(path, mode='wb', encoding=None, newline=None, make_dirs=False):
+    """
+    Yield a file object to write; it replaces ``path`` only if the block succeeds.
+
+    The file is the temporary file's own descriptor (``O_EXCL | O_NOFOLLOW``), never
+    opened again by name, so nobody can slip a link under it.
+
+    :param path: the file to create or replace.
+    :param mode: 'wb' or 'w' (text: give ``encoding``; ``newline`` as for :func:`open`).
+    :param make_dirs: create missing folders (removed again when the write fails).
+    :raises UnsafeOutput: the path may not be written (see the module docstring).
+    """
+    with _temporary(path, make_dirs) as (fd, tmp, target):
+        with open(os.dup(fd), mode, encoding=encoding, newline=newline) as f:
+            yield f
+            f.flush()
+            os.fsync(f.fileno())
+
+
+@contextlib.contextmanager
 def atomic_path(path, make_dirs=False):
     """
     Yield a temporary path to write; it replaces ``path`` only if the block succeeds.
 
-    For libraries that write by file name (``savefig``, ``np.savetxt``, CSV writers)::
+    For libraries that can only write by file name (prefer :func:`atomic_file`)::
 
         with atomic_path('report.png') as tmp:
             figure.savefig(tmp)
@@ -378,21 +423,9 @@ def atomic_path(path, make_dirs=False):
     :return: a context manager yielding the temporary path as a string.
     :raises UnsafeOutput: the path may not be written (see the module docstring).
     """
-    target = output_target(path)
-    made, tmp = [], None
-    try:
-        with signals_held():
-            if make_dirs:
-                made = make_parents(os.path.dirname(target))
-            fd, tmp = _create_temp(target)
-            os.close(fd)
+    with _temporary(path, make_dirs) as (fd, tmp, target):
         yield tmp
         _fsync_file(tmp)
-        replace_into(tmp, target)
-    except BaseException:
-        _remove_quietly(tmp)
-        remove_made(made)
-        raise
 
 
 def regular_opener(path, flags):

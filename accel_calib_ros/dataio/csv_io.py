@@ -17,7 +17,7 @@ import warnings
 
 import numpy as np
 
-from .atomic import atomic_path, regular_opener
+from .atomic import atomic_file, regular_opener
 from .formats import GYRO_COLUMNS, listed, MAX_LISTED, one_line, REQUIRED_COLUMNS, STANDARD_COLUMNS
 from ..core.errors import InputError
 from ..core.samples import Samples
@@ -601,9 +601,8 @@ def csv_writer(path, has_temp=False, has_gyro=False, extra_names=()):
         sys.stdout.flush()
         return
     try:
-        with atomic_path(path) as tmp:
-            with open(tmp, 'w', encoding='utf-8', newline='') as f:
-                yield CsvWriter(f, has_temp, has_gyro, extra_names)
+        with atomic_file(path, 'w', encoding='utf-8', newline='') as f:
+            yield CsvWriter(f, has_temp, has_gyro, extra_names)
     except OSError as exc:
         raise InputError(f'{path}: cannot write ({exc.strerror or one_line(exc)})') from None
 

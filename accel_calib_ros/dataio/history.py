@@ -251,6 +251,9 @@ class History:
                 real = output_target(self.path)
                 if os.path.isdir(real):
                     raise InputError(f'{self.path}: is a directory, not a history database')
+                for suffix in ('-wal', '-shm', '-journal'):    # sqlite opens these by name
+                    if os.path.lexists(real + suffix):
+                        output_target(real + suffix)
                 made = make_parents(os.path.dirname(real))
                 self.db = sqlite3.connect(real, timeout=BUSY_TIMEOUT_S, isolation_level=None)
         except (OSError, sqlite3.Error) as err:

@@ -127,8 +127,10 @@ def _directions(args, rng):
     if args.poses == 'random':
         return random_directions(args.count or 12, rng)
     path = args.poses
+    from ..core.errors import InputError
+    from ..dataio.atomic import regular_opener
     try:
-        with open(path, encoding='utf-8') as f:
+        with open(path, encoding='utf-8', opener=regular_opener) as f:   # never a FIFO
             rows = []
             for number, line in enumerate(f, 1):
                 text = line.strip()
@@ -145,6 +147,8 @@ def _directions(args, rng):
                     raise DeviceError(f'{path}:{number}: expected x,y,z numbers')
     except OSError as err:
         raise DeviceError(f'cannot read pose file {path}: {err.strerror}')
+    except InputError as err:
+        raise DeviceError(f'pose file {err}') from None
     except UnicodeDecodeError:
         raise DeviceError(f'pose file {path} is not UTF-8 text') from None
     d = np.asarray(rows, float).reshape(-1, 3)
@@ -401,7 +405,8 @@ def run(args):
         if args.truth_out:
             _write_truth(args.truth_out, sensor.truth())
     except DeviceError as err:
-        print(f'simulate-device: {err}', file=sys.stderr)
+        from ..dataio.formats import message_line
+        print(message_line(f'simulate-device: {err}'), file=sys.stderr)
         return 2
 
     flags = _Flags()
