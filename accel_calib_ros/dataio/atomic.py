@@ -150,7 +150,7 @@ def output_target(path, folder=False):
                                'in a shared folder; refusing to replace it')
         if not _writable(current):
             raise UnsafeOutput(f'{shown}: the file is read-only for this user; refusing to '
-                               'replace it (a rename would bypass its permissions)')
+                               'write it')
     return current
 
 
