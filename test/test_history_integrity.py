@@ -1,6 +1,8 @@
 """The history is transactional, survives damage and foreign files, and can forget (issue 16)."""
 
+import contextlib
 import hashlib
+import io
 import json
 import os
 import shutil
@@ -13,6 +15,7 @@ from accel_calib_ros.core.simulate import mpu9250_like, simulate_session
 from accel_calib_ros.dataio.history import History, HistoryDamaged
 from accel_calib_ros.dataio.sensor_id import normalise_sensor_id
 from damage_cases import DAMAGE, damage as _damage
+from hypothesis import given, HealthCheck, settings, strategies as st
 import numpy as np
 import peer_data
 import pytest
@@ -302,3 +305,43 @@ def test_sqlite_side_files_follow_the_same_rules(tmp_path, capsys, sessions):
     code, _, err = run(capsys, 'fit', sessions[0], '--history', db, '--sensor', 'imu0')
     assert code == 2 and 'FIFO' in err, err
     assert not db.exists()
+
+
+_CELLS = st.one_of(st.none(), st.integers(-2 ** 63, 2 ** 63 - 1), st.floats(allow_nan=False),
+                   st.text(max_size=20), st.binary(max_size=20),
+                   st.sampled_from(['[1, 2, 3]', '[' + ', '.join(['1e308'] * 9) + ']',
+                                    '[1, 0, 0, 0, 1, 0, 0, 0, 1]', '{}', 'null', '[[1]]',
+                                    '["a", "b", "c"]', 'NaN', '1e999']))
+_COLUMNS = {'calibrations': ['sensor_id', 'time_s', 'created', 'method', 'temp_min_c',
+                             'temp_max_c', 'predicted_accuracy', 'residual_rms', 'windows',
+                             'T', 'bias', 'gyro_bias', 'source', 'session'],
+            'windows': ['sensor_id', 'time_s', 'mx', 'my', 'mz', 'temp_c', 'weight', 'gx', 'gy',
+                        'gz', 'session']}
+
+
+@settings(max_examples=40, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(table=st.sampled_from(sorted(_COLUMNS)), data=st.data(), value=_CELLS)
+def test_any_value_in_any_cell_is_read_or_named(tmp_path_factory, good_db, sessions, table,
+                                                data, value):
+    """Whatever another program wrote into a cell: exit 0, 1 or 2 with one line, no crash."""
+    column = data.draw(st.sampled_from(_COLUMNS[table]))
+    path = tmp_path_factory.mktemp('cell') / 'h.sqlite'
+    shutil.copy(good_db, path)
+    db = sqlite3.connect(path)
+    try:
+        db.execute(f'UPDATE {table} SET {column} = ? WHERE id = 1', (value,))
+        db.commit()
+    except sqlite3.IntegrityError:          # NOT NULL / UNIQUE: sqlite itself refuses it
+        return
+    finally:
+        db.close()
+    for argv in (['history', '--db', path, '--json'], ['history', 'check', '--db', path],
+                 ['fit', sessions[0], '--history', path, '--sensor', 'imu0']):
+        out, err = io.StringIO(), io.StringIO()
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            code = main([str(a) for a in argv])
+        text = err.getvalue()
+        assert code in (0, 1, 2) and 'internal error' not in text, (column, value, argv, text)
+        if code == 2:
+            assert text.count('\n') == 1, text

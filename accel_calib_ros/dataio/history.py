@@ -149,7 +149,13 @@ MAX_TIME_S = 1e11
 """Latest Unix time a row may hold, s (the year 5138): beyond it a time is damage."""
 
 
-def _real(value, name, optional=False, positive=False, low=-math.inf, high=math.inf):
+MAX_VALUE = 1e9
+"""Largest magnitude a stored parameter or reading may have (raw counts included)."""
+MAX_WEIGHT = 1e12
+"""Largest window weight (samples) a row may hold."""
+
+
+def _real(value, name, optional=False, positive=False, low=-MAX_VALUE, high=MAX_VALUE):
     if value is None and optional:
         return None
     if isinstance(value, bool) or not isinstance(value, (int, float)) \
@@ -167,7 +173,7 @@ def _shown(value):
     return text if len(text) <= 30 else text[:29] + '…'
 
 
-def _numbers(text, name, size, optional=False):
+def _numbers(text, name, size, optional=False, limit=MAX_VALUE):
     if text is None and optional:
         return None
     if not isinstance(text, str):
@@ -178,7 +184,7 @@ def _numbers(text, name, size, optional=False):
         raise _Bad(f'{name} is not valid JSON ({_shown(text)})') from None
     if not isinstance(values, list) or len(values) != size:
         raise _Bad(f'{name} holds {_shown(values)}, not a list of {size} numbers')
-    return [_real(v, name) for v in values]
+    return [_real(v, name, low=-limit, high=limit) for v in values]
 
 
 def _text(value, name, optional=True):
@@ -192,8 +198,8 @@ def _text(value, name, optional=True):
 def _calibration_row(r):
     """Return the dict of one ``calibrations`` row (see :meth:`History.calibrations`)."""
     T = _numbers(r[10], 'T', 9)
-    low = _real(r[5], 'temp_min_c', optional=True)
-    high = _real(r[6], 'temp_max_c', optional=True)
+    low = _real(r[5], 'temp_min_c', optional=True, low=-1e3, high=1e3)
+    high = _real(r[6], 'temp_max_c', optional=True, low=-1e3, high=1e3)
     windows = r[9]
     if windows is not None and (isinstance(windows, bool) or not isinstance(windows, int)
                                 or windows < 0):
@@ -204,8 +210,9 @@ def _calibration_row(r):
         'created': _text(r[3], 'created'),
         'method': _text(r[4], 'method'),
         'temperature_range_c': None if low is None or high is None else [low, high],
-        'predicted_accuracy': _real(r[7], 'predicted_accuracy', optional=True),
-        'residual_rms': _real(r[8], 'residual_rms', optional=True), 'windows': windows,
+        'predicted_accuracy': _real(r[7], 'predicted_accuracy', optional=True, low=0.0),
+        'residual_rms': _real(r[8], 'residual_rms', optional=True, low=0.0),
+        'windows': windows,
         'T': np.array(T).reshape(3, 3).tolist(), 'bias': _numbers(r[11], 'bias', 3),
         'gyro_bias': _numbers(r[12], 'gyro_bias', 3, optional=True),
         'source': _text(r[13], 'source'), 'session': _text(r[14], 'session')}
@@ -216,7 +223,8 @@ def _window_row(r):
     _text(r[1], 'sensor_id', False)
     values = [_real(r[2], 'time_s', low=0.0, high=MAX_TIME_S),
               _real(r[3], 'mx'), _real(r[4], 'my'), _real(r[5], 'mz'),
-              _real(r[6], 'temp_c', optional=True), _real(r[7], 'weight', positive=True),
+              _real(r[6], 'temp_c', optional=True, low=-1e3, high=1e3),
+              _real(r[7], 'weight', positive=True, high=MAX_WEIGHT),
               _real(r[8], 'gx', optional=True), _real(r[9], 'gy', optional=True),
               _real(r[10], 'gz', optional=True)]
     _text(r[11], 'session')
@@ -490,6 +498,9 @@ class History:
         bias = np.asarray(cal.bias, float)
         if not (np.all(np.isfinite(T)) and np.all(np.isfinite(bias))):
             raise InputError('a calibration with non-finite parameters is not recorded')
+        if max(np.abs(T).max(), np.abs(bias).max()) > MAX_VALUE:
+            raise InputError(f'a calibration with parameters beyond {MAX_VALUE:g} is not '
+                             'recorded')
         trange = getattr(cal, 'temperature_range_c', None) or (None, None)
         time_s = float(time.time() if time_s is None else time_s)
         if not 0.0 <= time_s <= MAX_TIME_S:
