@@ -31,11 +31,13 @@ def damage(path, how):
         db.commit()
     db.close()
     if how.startswith('zero_page_'):
-        data = bytearray(open(path, 'rb').read())
+        with open(path, 'rb') as f:
+            data = bytearray(f.read())
         size = int.from_bytes(data[16:18], 'big')
         page = int(how.rsplit('_', 1)[1])
         data[page * size:(page + 1) * size] = bytes(size)
-        open(path, 'wb').write(bytes(data))
+        with open(path, 'wb') as f:
+            f.write(bytes(data))
     elif how == 'foreign':
         os.remove(path)
         with sqlite3.connect(path) as db:
@@ -46,12 +48,16 @@ def damage(path, how):
         with sqlite3.connect(path) as db:
             db.execute('CREATE TABLE topics (id INTEGER, name TEXT)')
     elif how == 'text':
-        open(path, 'w').write('{"not": "a database"}\n')
+        with open(path, 'w') as f:
+            f.write('{"not": "a database"}\n')
     elif how == 'empty':
-        open(path, 'w').close()
+        with open(path, 'w'):
+            pass
 
 
 DAMAGE = ['bad_json', 'wrong_size_T', 'text_time', 'huge_time', 'text_window',
           'null_weight_text', 'bias_object', 'newer_schema', 'no_schema_row', 'dropped_column',
           'zero_page_0', 'zero_page_1', 'zero_page_2', 'zero_page_3', 'foreign',
           'rosbag_like', 'text', 'empty']
+EMPTY_IS_NEW = ('empty',)
+"""Damage that is no damage to a writer: ``fit --history`` starts a history in an empty file."""

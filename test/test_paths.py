@@ -232,7 +232,8 @@ def test_dash_is_standard_output_where_text_makes_sense(tmp_path, capsys, inputs
     assert 'predicted accuracy' in err                 # the summary went to stderr
     code, out, err = run(capsys, 'apply', cal, data, '-o', '-')
     assert code == 0 and out.startswith('t,ax,ay,az') and 'corrected' in err
-    assert len(out.splitlines()) == len(open(data).read().splitlines())
+    with open(data) as f:
+        assert len(out.splitlines()) == len(f.read().splitlines())
     code, out, err = run(capsys, 'simulate', '-o', '-', '--poses', '3', '--hold', '0.2')
     assert code == 0 and out.startswith('t,ax,ay,az') and 'simulated' in err
     for argv in (['fit', data, '-o', '-', '--json'], ['apply', cal, data, '-o', '-', '--json'],

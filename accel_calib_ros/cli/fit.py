@@ -91,7 +91,7 @@ def history_observations(args, samples, obs):
            'time_s': np.broadcast_to(np.asarray(when, float), (obs.count,)), 'gyro_mean': gyro}
     kept = {'mean': np.zeros((0, 3)), 'temp': np.zeros(0), 'weight': np.zeros(0),
             'time_s': np.zeros(0), 'gyro_mean': np.zeros((0, 3))}
-    if os.path.exists(path):
+    if os.path.exists(path) and not (os.path.isfile(path) and os.path.getsize(path) == 0):
         with History(path, readonly=True) as h:
             kept = h.windows(args.sensor)
             h.calibrations(args.sensor)         # damage is named now, before any fit
