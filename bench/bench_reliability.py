@@ -388,6 +388,9 @@ def bench_signals(folder, trials, seed=16):
     out_dir = os.path.join(folder, 'sig_out')
     os.mkdir(out_dir)
     out = os.path.join(out_dir, 'corrected.csv')
+    complete = os.path.join(folder, 'sig_complete.csv')      # what a finished apply writes
+    run_cli(['apply', cal, data, '-o', complete])
+    complete = _read(complete, 'r')
     signals = [signal.SIGTERM, signal.SIGHUP, signal.SIGINT]
     crashes = destroyed = temps = stopped = 0
     for k in range(trials):
@@ -401,13 +404,13 @@ def bench_signals(folder, trials, seed=16):
         while proc.poll() is None and time.monotonic() < deadline and \
                 not any(_is_temp(n) for n in os.listdir(out_dir)):
             time.sleep(0.005)
-        time.sleep(float(rng.uniform(0.0, 1.5)))           # mid-write, or after the end
+        time.sleep(float(rng.uniform(0.0, 0.8)))           # mid-write, or after the end
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=300)
-        crashes += proc.returncode not in (0, 128 + sig) or 'Traceback' in err
+        # 0: done before the signal; 128+N: stopped; -N: killed while exiting, all done
+        crashes += proc.returncode not in (0, 128 + sig, -sig) or 'Traceback' in err
         stopped += proc.returncode == 128 + sig
-        if proc.returncode != 0:
-            destroyed += _read(out, 'r') != 'old\n'
+        destroyed += _read(out, 'r') not in ('old\n', complete)     # half a file
         temps += sum(_is_temp(n) for n in os.listdir(out_dir))
     return (f'signals during apply ({stopped} of {trials} stopped mid-write)', trials, crashes,
             destroyed, 0, temps)

@@ -111,7 +111,9 @@ def main(argv=None):
         return 128 + getattr(err, 'signum', signal.SIGINT)
     finally:
         for sig, handler in old.items():
-            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+            if handler is None or (argv is None and handler is signal.default_int_handler):
+                handler = signal.SIG_DFL      # the process ends now: no KeyboardInterrupt
+            signal.signal(sig, handler)       # traceback from a Ctrl-C while it exits
 
 
 def _error(text, limit=MAX_MESSAGE):
