@@ -38,7 +38,13 @@ __all__ = ['atomic_file', 'atomic_path', 'atomic_write_bytes', 'atomic_write_tex
 
 MAX_LINKS = 40
 """Symbolic links followed on one path at most (the kernel's own limit)."""
-_HELD_SIGNALS = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
+_HELD_SIGNALS = {getattr(signal, name) for name in ('SIGINT', 'SIGTERM', 'SIGHUP')
+                 if hasattr(signal, name)}
+
+
+def _euid():
+    """Return the effective user id (-1 where there is none, e.g. Windows)."""
+    return os.geteuid() if hasattr(os, 'geteuid') else -1
 
 
 class UnsafeOutput(InputError):
@@ -62,7 +68,7 @@ def _shared(dir_stat):
 
 def _check_link(shown, link, link_stat, folder):
     """Refuse to follow ``link`` (in ``folder``) unless its owner is to be trusted."""
-    me = os.geteuid()
+    me = _euid()
     if link_stat.st_uid == me:
         return
     shared = _shared(os.stat(folder))
@@ -145,7 +151,7 @@ def output_target(path, folder=False):
                                'refusing to replace it (choose a file name)')
         folder = os.path.dirname(current)
         dir_stat = os.stat(folder)
-        if _shared(dir_stat) and st.st_uid not in (os.geteuid(), dir_stat.st_uid):
+        if _shared(dir_stat) and st.st_uid not in (_euid(), dir_stat.st_uid):
             raise UnsafeOutput(f'{shown}: the file belongs to another user (uid {st.st_uid}) '
                                'in a shared folder; refusing to replace it')
         if not _writable(current):
@@ -228,7 +234,7 @@ def _copy_mode(target, tmp):
     if not stat.S_ISREG(st.st_mode):
         return
     os.chmod(tmp, stat.S_IMODE(st.st_mode))
-    if os.geteuid() == 0 and (st.st_uid, st.st_gid) != (0, 0):
+    if _euid() == 0 and (st.st_uid, st.st_gid) != (0, 0):
         with contextlib.suppress(OSError):
             os.chown(tmp, st.st_uid, st.st_gid, follow_symlinks=False)
 
