@@ -335,3 +335,14 @@ def test_a_temp_file_swapped_under_the_writer_replaces_nothing(tmp_path):
         f.write('new')
     assert target.read_text() == 'new'
     assert sorted(os.listdir(tmp_path)) == sorted(['cal.yaml'] + planted)
+
+
+def test_a_second_output_that_cannot_be_written_stops_before_the_first(tmp_path, capsys):
+    """``simulate -o A --truth missing/B`` wrote A, then failed: refused before A now."""
+    code, _, err = run(capsys, 'simulate', '-o', tmp_path / 'a.csv', '--truth',
+                       tmp_path / 'missing' / 'b.yaml')
+    assert code == 2 and 'does not exist' in err
+    code, _, err = run(capsys, 'guide', '--simulate', '-o', tmp_path / 'c.yaml', '--record',
+                       tmp_path / 'missing' / 'r.csv', '--timeout', '1')
+    assert code == 2 and 'does not exist' in err
+    assert os.listdir(tmp_path) == []

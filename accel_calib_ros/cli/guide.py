@@ -239,6 +239,8 @@ def run(args, out):
     output = args.output or default_calibration_path()
     check_output(output, args.port, what='-o')
     check_output(args.record, args.port, what='--record')
+    if args.record and not os.path.isdir(os.path.dirname(os.path.abspath(args.record))):
+        raise UsageError(f'accel-calib: --record {args.record}: its folder does not exist')
     if same_file(args.record, output):
         raise UsageError('accel-calib guide: --record and -o must be different files')
     history = None

@@ -1,5 +1,6 @@
 """``accel-calib simulate``: a calibration session of a simulated MPU-9250, streamed to a file."""
 
+import os
 import sys
 
 import numpy as np
@@ -48,6 +49,9 @@ def run(args, out):
         raise UsageError('accel-calib: simulate -o - writes the CSV to standard output: '
                          'leave out --json')
     check_output(args.truth, args.output, args.noise_from, what='--truth')
+    if args.truth and not os.path.isdir(os.path.dirname(os.path.abspath(args.truth))):
+        raise UsageError(f'accel-calib: --truth {args.truth}: its folder does not exist (the '
+                         'recording would be written and the truth lost)')
     check_output(args.output, args.noise_from, stdout=True)
     if args.output != STDOUT:
         check_suffix(args.output, ('.csv', '.mcap', '.db3'), 'simulate -o')
