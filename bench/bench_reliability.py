@@ -299,6 +299,181 @@ def print_frame_table(n, results):
     return ok
 
 
+# -- issue 16: paths, history and signals (own rows, own table) ----------------------------
+
+FILES_HEAD = ('input class', 'inputs tried', 'crashes', 'inputs destroyed',
+              'foreign files changed', 'temp files left')
+
+
+def _test_helpers():
+    """Import the case builders shared with the tests (test/path_cases.py, damage_cases.py)."""
+    folder = os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', 'test')
+    if folder not in sys.path:
+        sys.path.insert(0, folder)
+    import damage_cases
+    import path_cases
+    return path_cases, damage_cases
+
+
+def _is_temp(path):
+    name = os.path.basename(path)
+    return name.startswith('.') and '.tmp' in name
+
+
+def _diff(before, after, allowed, inputs_root):
+    """Classify what changed: (inputs destroyed, foreign files changed, temp files left)."""
+    destroyed = foreign = temps = 0
+    for path in set(before) | set(after):
+        if path == allowed or before.get(path) == after.get(path):
+            continue
+        if path not in before and _is_temp(path):
+            temps += 1
+        elif path.startswith(inputs_root):
+            destroyed += 1
+        else:
+            foreign += 1
+    return destroyed, foreign, temps
+
+
+def bench_paths(folder, runner, other):
+    """Every kind of output path (kinds x places x commands) run by ``runner``: one row."""
+    path_cases, _ = _test_helpers()
+    inputs = path_cases.make_inputs(os.path.join(folder, f'inputs{runner}'))
+    root = os.path.join(folder, f'as{runner}')
+    cases = path_cases.all_cases(root, inputs, runner, other)
+    before = path_cases.snapshot(root)
+    if runner == os.geteuid():
+        results = path_cases.run_cases(cases)
+    else:
+        path_cases.warm_up(inputs)
+        results = path_cases.run_as(runner, path_cases.run_cases, cases)
+    after = path_cases.snapshot(root)
+    crashes = destroyed = foreign = temps = 0
+    for case, (code, err) in zip(cases, results):
+        crashes += code not in (0, 1, 2) or 'Traceback' in err or 'internal error' in err
+        inside = case['root'] + os.sep
+        mine = {p: v for p, v in before.items() if p.startswith(inside)}
+        now = {p: v for p, v in after.items() if p.startswith(inside)}
+        d, f, t = _diff(mine, now, case['allowed'] if code == 0 else None,
+                        os.path.join(case['root'], 'in'))
+        destroyed, foreign, temps = destroyed + d, foreign + f, temps + t
+    who = 'root' if runner == 0 else f'uid {runner}'
+    return (f'output paths (every kind, run as {who})', len(cases), crashes, destroyed,
+            foreign, temps)
+
+
+def _read(path, mode='rb'):
+    with open(path, mode) as f:
+        return f.read()
+
+
+def bench_history(folder):
+    """Damaged and foreign history databases through every history command: one row."""
+    import shutil
+    path_cases, damage_cases = _test_helpers()
+    inputs = path_cases.make_inputs(os.path.join(folder, 'hist_inputs'))
+    data = os.path.join(inputs, 'data.csv')
+    good = os.path.join(folder, 'good.sqlite')
+    run_cli(['fit', data, '--history', good, '--sensor', 'imu0'])
+    tried = crashes = destroyed = temps = 0
+    for k, how in enumerate(damage_cases.DAMAGE):
+        case = os.path.join(folder, f'db{k}')
+        os.mkdir(case)
+        db = os.path.join(case, 'h.sqlite')
+        shutil.copy(good, db)
+        damage_cases.damage(db, how)
+        before = _read(db)
+        for argv in (['history', '--db', db], ['history', '--db', db, '--json'],
+                     ['history', '--db', db, '--plot', os.path.join(case, 'p.png')],
+                     ['history', 'check', '--db', db],
+                     ['fit', data, '--history', db, '--sensor', 'imu0']):
+            if how in damage_cases.EMPTY_IS_NEW and argv[0] == 'fit':
+                continue                       # an empty file is a new history
+            code, _, err, crashed = run_cli(argv)
+            tried += 1
+            crashes += crashed or code != 2
+            destroyed += _read(db) != before
+        temps += sum(_is_temp(n) for n in os.listdir(case))
+    # refused fits (the limit no fit meets) into a good history: it must stay byte-identical
+    before = _read(good)
+    for _ in range(5):
+        code, _, _, crashed = run_cli(['fit', data, '--history', good, '--sensor', 'imu0',
+                                       '--max-predicted-error', '1e-9'])
+        tried += 1
+        crashes += crashed or code != 1
+        destroyed += _read(good) != before
+    return ('history (damaged/foreign DBs, refused fits)', tried, crashes, destroyed, 0, temps)
+
+
+def bench_signals(folder, trials, seed=16):
+    """SIGTERM, SIGHUP and SIGINT at random moments of ``apply`` on a big file: one row."""
+    import signal
+    import subprocess
+    import time
+    from accel_calib_ros.core.model import Calibration
+    from accel_calib_ros.core.samples import Samples
+    from accel_calib_ros.dataio.calibration_file import save_calibration
+    from accel_calib_ros.dataio.recording import write_samples_csv
+    rng = np.random.default_rng(seed)
+    n = 400_000
+    data = os.path.join(folder, 'big.csv')
+    write_samples_csv(data, Samples(np.arange(n) * 0.005,
+                                    rng.normal(0, 0.01, (n, 3)) + [0, 0, G]))
+    cal = os.path.join(folder, 'sig_cal.yaml')
+    save_calibration(Calibration(T=np.eye(3) * 1.01, bias=[0.1, 0.0, -0.1]), cal)
+    out_dir = os.path.join(folder, 'sig_out')
+    os.mkdir(out_dir)
+    out = os.path.join(out_dir, 'corrected.csv')
+    complete = os.path.join(folder, 'sig_complete.csv')      # what a finished apply writes
+    run_cli(['apply', cal, data, '-o', complete])
+    complete = _read(complete, 'r')
+    signals = [signal.SIGTERM, signal.SIGHUP, signal.SIGINT]
+    crashes = destroyed = temps = stopped = 0
+    for k in range(trials):
+        with open(out, 'w') as f:
+            f.write('old\n')
+        sig = signals[k % 3]
+        proc = subprocess.Popen([sys.executable, '-m', 'accel_calib_ros.cli', 'apply', cal,
+                                 data, '-o', out], stdout=subprocess.DEVNULL,
+                                stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 120                  # wait for the temp file: writing
+        while proc.poll() is None and time.monotonic() < deadline and \
+                not any(_is_temp(n) for n in os.listdir(out_dir)):
+            time.sleep(0.005)
+        time.sleep(float(rng.uniform(0.0, 0.8)))           # mid-write, or after the end
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=300)
+        # 0: done before the signal; 128+N: stopped; -N: killed while exiting, all done
+        crashes += proc.returncode not in (0, 128 + sig, -sig) or 'Traceback' in err
+        stopped += proc.returncode == 128 + sig
+        destroyed += _read(out, 'r') not in ('old\n', complete)     # half a file
+        temps += sum(_is_temp(n) for n in os.listdir(out_dir))
+    return (f'signals during apply ({stopped} of {trials} stopped mid-write)', trials, crashes,
+            destroyed, 0, temps)
+
+
+def files_rows(signal_trials):
+    """Measure the issue-16 rows; print their table; return True when every count is 0."""
+    import shutil
+    folder = tempfile.mkdtemp(prefix='bench16-')
+    os.chmod(folder, 0o755)                    # the unprivileged runner must reach it
+    try:
+        rows = [bench_paths(folder, os.geteuid(), 65534 if os.geteuid() == 0
+                            else os.geteuid())]
+        if os.geteuid() == 0:
+            rows.append(bench_paths(folder, 65534, 0))
+        rows.append(bench_history(folder))
+        rows.append(bench_signals(folder, signal_trials))
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+    widths = [max(len(str(r[i])) for r in rows + [FILES_HEAD]) for i in range(6)]
+    print()
+    print('  '.join(h.ljust(w) for h, w in zip(FILES_HEAD, widths)))
+    for r in rows:
+        print('  '.join(str(v).ljust(w) for v, w in zip(r, widths)))
+    return all(v == 0 for r in rows for v in r[2:])
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     ap.add_argument('--frames', type=int, default=1_000_000,
@@ -309,6 +484,8 @@ def main():
                     help='random CLI option values tried (default %(default)s)')
     ap.add_argument('--mutants', type=int, default=400,
                     help='damaged calibration files tried (default %(default)s)')
+    ap.add_argument('--signals', type=int, default=12,
+                    help='signals sent to apply mid-run, issue 16 (default %(default)s)')
     args = ap.parse_args()
     rng = np.random.default_rng(8)
     ok = True
@@ -331,6 +508,7 @@ def main():
         for line in examples:
             print(f'crash: {line}')
         ok = all(r[2] == 0 and r[3] == 0 and r[4] == 0 for r in rows)
+        ok &= files_rows(args.signals)
     if args.frames > 0:
         ok &= print_frame_table(args.frames, bench_frames(args.frames, rng))
     return 0 if ok else 1

@@ -12,7 +12,8 @@ import sys
 
 import numpy as np
 
-from .common import add_data_args, check_output, check_suffix, to_si, unit_options
+from .common import (add_data_args, check_output, check_suffix, STDOUT, time_unit, to_si,
+                     unit_options, UsageError)
 from ..core.errors import InputError
 from ..core.samples import Samples
 
@@ -21,17 +22,23 @@ def add_arguments(p):
     """Add the options of ``apply`` to its parser."""
     p.add_argument('calibration', help='calibration YAML from "accel-calib fit"')
     add_data_args(p)
-    p.add_argument('-o', '--output', required=True, help='corrected CSV to write')
+    p.add_argument('-o', '--output', required=True,
+                   help='corrected CSV to write ("-": standard output, the summary then goes '
+                        'to stderr)')
     p.add_argument('--json', action='store_true', help='print one JSON object')
 
 
 def run(args, out):
     """Run ``accel-calib apply``; return the exit status."""
-    check_output(args.output, args.calibration, args.data)
+    if args.output == STDOUT and args.json:
+        raise UsageError('accel-calib: apply -o - writes the CSV to standard output: '
+                         'leave out --json')
+    check_output(args.output, args.calibration, args.data, stdout=True)
     from ..dataio.calibration_file import load_calibration
     from ..dataio.recording import csv_writer, iter_samples
     from .progress import Progress
-    check_suffix(args.output, ('.csv',), 'apply -o')
+    if args.output != STDOUT:
+        check_suffix(args.output, ('.csv',), 'apply -o')
     unit_options(args)
     cal = load_calibration(args.calibration)
     is_csv = args.data.lower().endswith('.csv') and os.path.isfile(args.data)
@@ -40,7 +47,8 @@ def run(args, out):
                   'B' if is_csv else 'rows') as bar:
         pieces = iter_samples(args.data, imu_topic=args.imu_topic, temp_topic=args.temp_topic,
                               on_read=bar.update if is_csv else None,
-                              mag_topic=getattr(args, 'mag_topic', None))
+                              mag_topic=getattr(args, 'mag_topic', None),
+                              time_unit=time_unit(args))
         first = to_si(next(pieces), args)        # m/s², like every piece after it
         pieces = (to_si(piece, args, check=False) for piece in pieces)
         if cal.thermal is not None and cal.thermal.usable and first.temp is None:
@@ -89,12 +97,14 @@ def run(args, out):
     if args.json:
         out(summary)
     else:
-        print(f'corrected {n} samples -> {args.output} '
+        print(f'corrected {n} samples -> '
+              f'{"standard output" if args.output == STDOUT else args.output} '
               f'(mean |a| {sum_before / n:.4f} -> {sum_after / n:.4f} m/s²'
               + (f', gyro: {summary["gyro_corrected"]}' if summary['gyro_corrected'] else '')
               + (', magnetometer corrected' if summary['magnetometer_corrected'] else
                  ', mx my mz as recorded (no magnetometer calibration)'
-                 if first.mag is not None else '') + ')')
+                 if first.mag is not None else '') + ')',
+              file=sys.stderr if args.output == STDOUT else sys.stdout)
     return 0
 
 

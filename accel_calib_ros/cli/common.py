@@ -9,6 +9,9 @@ command.
 import argparse
 import math
 import os
+import stat
+
+from ..dataio.formats import MAX_MESSAGE, message_line  # noqa: F401 - one line, capped
 
 
 G0 = 9.80665
@@ -39,6 +42,7 @@ def add_data_args(p):
     p.add_argument('--mag-topic', help='sensor_msgs/MagneticField topic in a bag (tesla; '
                                        'default: the only one)')
     add_unit_args(p)
+    add_time_unit_arg(p)
 
 
 UNITS = ('m/s2', 'g', 'counts')
@@ -186,7 +190,8 @@ def load_data(args):
     with Progress(size, 'read', 'B') as bar:     # shown only for a long read on a terminal
         samples = load_samples(args.data, imu_topic=args.imu_topic,
                                temp_topic=args.temp_topic, on_read=bar.update,
-                               mag_topic=getattr(args, 'mag_topic', None))
+                               mag_topic=getattr(args, 'mag_topic', None),
+                               time_unit=time_unit(args))
     return to_si(samples, args)
 
 
@@ -203,16 +208,14 @@ def same_file(a, b):
     return os.path.realpath(a) == os.path.realpath(b)
 
 
-def check_output(output, *inputs, what='output'):
-    """Raise UsageError when ``output`` is one of ``inputs`` (it would destroy it)."""
-    if not output:
-        return
-    if os.path.isdir(os.path.expanduser(output)):
-        raise UsageError(f'accel-calib: {what} {output} is a directory')
-    for path in inputs:
-        if path and same_file(output, path):
-            raise UsageError(f'accel-calib: {what} {output} is the input {path}; '
-                             'writing it would destroy the input: choose another name')
+def check_output(output, *inputs, what='output', stdout=False, folder=False):
+    """
+    Refuse (UsageError, exit 2) an output that would destroy an input or a foreign file.
+
+    See :func:`check_output_path`; ``stdout`` allows ``-`` (standard output), ``folder``
+    an output folder.
+    """
+    return check_output_path(output, *inputs, what=what, stdout=stdout, folder=folder)
 
 
 def check_suffix(path, suffixes, what):
@@ -250,3 +253,180 @@ def check_not_empty(args):
         value = getattr(args, name, None)
         if isinstance(value, str) and not value.strip():
             raise UsageError(f'accel-calib: {option} is an empty name; give a file name')
+
+
+# -- the output border (issue 16) ----------------------------------------------------------
+
+MAX_REFUSAL = 500
+"""Longest refusal line (``cannot calibrate: ...``): its own words, the poses to add."""
+EXPANDED_PATHS = ('data', 'calibration', 'output', 'truth', 'report', 'plot', 'record', 'db',
+                  'truth_out', 'link', 'port', 'history', 'noise_from', 'poses')
+"""File-name arguments whose leading ``~`` / ``~user`` is expanded (or refused)."""
+STDOUT = '-'
+"""The output name meaning standard output (where a command writes text)."""
+
+
+def expand_user(text, option):
+    """
+    Expand a leading ``~`` or ``~user`` of a file name; refuse an unknown user.
+
+    :param text: the name as given (returned unchanged unless it starts with ``~``).
+    :param option: the option's name, for the message.
+    :raises UsageError: ``~user`` names no user (a folder literally named ``~user`` is
+        never created).
+    """
+    if not isinstance(text, str) or not text.startswith('~'):
+        return text
+    expanded = os.path.expanduser(text)
+    if expanded.startswith('~'):
+        user = text[1:].split(os.sep, 1)[0]
+        who = f'no user {user!r}' if user else 'no home folder'
+        raise UsageError(f'accel-calib: {option} {text}: there is {who} to expand '
+                         f'~{user} to (write ./{text.split(os.sep, 1)[0]} for a folder of '
+                         'that name)')
+    return expanded
+
+
+def expand_paths(args):
+    """Expand ``~`` in every file-name argument of ``args`` (in place), or refuse."""
+    options = dict(PATH_OPTIONS, history='--history', noise_from='--noise-from',
+                   poses='--poses')
+    for name in EXPANDED_PATHS:
+        value = getattr(args, name, None)
+        if isinstance(value, str) and value:
+            setattr(args, name, expand_user(value, options.get(name, name)))
+
+
+def input_folders(path):
+    """
+    Return the folders an input ``path`` owns: a bag directory, or the bag of a storage file.
+
+    Nothing may be written inside them (``fit BAG -o BAG/metadata.yaml`` would destroy it).
+    """
+    if not path or path == STDOUT:
+        return []
+    path = os.fspath(path)
+    if os.path.isdir(path):
+        return [os.path.realpath(path)]
+    folder = os.path.dirname(os.path.realpath(path))
+    if path.lower().endswith(('.mcap', '.db3')) and \
+            os.path.isfile(os.path.join(folder, 'metadata.yaml')):
+        return [folder]
+    return []
+
+
+def _inside(target, folder):
+    try:
+        return os.path.commonpath([target, folder]) == folder
+    except ValueError:
+        return False
+
+
+def check_output_path(output, *inputs, what='output', stdout=False, folder=False):
+    """
+    Check the border of every file a command writes (exit status 2, one line).
+
+    Refuses an output that is an input, lies inside an input folder or bag, exists but
+    is not a regular file (device, FIFO, socket, directory), or is reached through a
+    symbolic link another user owns (the rules of :func:`dataio.atomic.output_target`).
+
+    :param output: the output name as given (``~`` expanded), or None (nothing to check).
+    :param inputs: the command's inputs (files or folders; None entries are skipped).
+    :param what: the option, for the message (``-o``, ``--plot``, ...).
+    :param stdout: ``-`` means standard output here (else it is a usage error).
+    :param folder: the output is a folder (``diagnose --report``): it may exist as one.
+    :return: the real path that will be written (``-`` for standard output), or None.
+    :raises UsageError: the output must not be written.
+    """
+    if output is None:
+        return None
+    output = os.fspath(output)
+    if output == STDOUT:
+        if stdout:
+            return STDOUT
+        raise UsageError(f'accel-calib: {what} -: this output cannot go to standard output; '
+                         'give a file name')
+    from ..dataio.atomic import output_target, UnsafeOutput
+    try:
+        target = output_target(output, folder=folder)
+    except UnsafeOutput as err:
+        raise UsageError(f'accel-calib: {what} {err}') from None
+    except OSError as err:
+        raise UsageError(f'accel-calib: {what} {output}: {err.strerror or err}') from None
+    for path in inputs:
+        if not path or path == STDOUT:
+            continue
+        if same_file(output, path) or same_file(target, path):
+            raise UsageError(f'accel-calib: {what} {output} is the input {path}; '
+                             'writing it would destroy the input: choose another name')
+        for inside in input_folders(path):
+            if _inside(target, inside):
+                raise UsageError(f'accel-calib: {what} {output} lies inside the input {inside}'
+                                 '; writing there could destroy it: choose a path outside it')
+    return target
+
+
+def sensor_id(text):
+    """Argparse type: a sensor id, normalised (stripped, NFC) and checked (printable)."""
+    from ..core.errors import InputError
+    from ..dataio.sensor_id import normalise_sensor_id
+    try:
+        return normalise_sensor_id(text)
+    except InputError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
+TIME_UNITS = ('s', 'ms', 'us', 'ns')
+"""Units the ``t`` column of a CSV may be given in (--time-unit)."""
+
+
+def add_time_unit_arg(p):
+    """Add ``--time-unit`` (the unit of a CSV's ``t`` column) to parser ``p``."""
+    p.add_argument('--time-unit', choices=TIME_UNITS, default=None,
+                   help='unit of the t column of a CSV (default s, the spec; a spacing no '
+                        'IMU has, 1 Hz .. 100 kHz, is refused with the unit it looks like)')
+
+
+def time_unit(args):
+    """Return the CSV time unit of ``args`` ('s' unless --time-unit says otherwise)."""
+    return getattr(args, 'time_unit', None) or 's'
+
+
+def check_link_output(link, *inputs, what='--link'):
+    """
+    Check the border of a symbolic link a command maintains (``simulate-device --link``).
+
+    The link itself is replaced (never what it points to), so: no input may be it or lie
+    under it, an existing entry must be a link, and a link in a shared folder must be the
+    user's own; the folders on the way follow the rules of :func:`check_output_path`.
+
+    :raises UsageError: the link must not be made or replaced there.
+    """
+    if link is None:
+        return
+    for path in inputs:
+        if path and same_file(link, path):
+            raise UsageError(f'accel-calib: {what} {link} is the input {path}; '
+                             'writing it would destroy the input: choose another name')
+    from ..dataio.atomic import output_target, UnsafeOutput
+    parent = os.path.dirname(os.path.abspath(link))
+    try:
+        folder = output_target(parent, folder=True)
+        st = os.lstat(link) if os.path.lexists(link) else None
+    except UnsafeOutput as err:
+        raise UsageError(f'accel-calib: {what} {err}') from None
+    except OSError as err:
+        raise UsageError(f'accel-calib: {what} {link}: {err.strerror or err}') from None
+    if st is not None and not stat.S_ISLNK(st.st_mode):
+        raise UsageError(f'accel-calib: {what} {link} exists and is not a symlink: replacing '
+                         'it would destroy it (choose a new name)')
+    if st is not None and st.st_uid != os.geteuid() and \
+            os.stat(folder).st_mode & (stat.S_ISVTX | stat.S_IWOTH):
+        raise UsageError(f'accel-calib: {what} {link}: the link belongs to another user '
+                         f'(uid {st.st_uid}) in the shared folder {folder}; choose a new name')
+    target = os.path.join(folder, os.path.basename(link))
+    for path in inputs:
+        for inside in input_folders(path):
+            if _inside(target, inside):
+                raise UsageError(f'accel-calib: {what} {link} lies inside the input {inside}; '
+                                 'writing there could destroy it: choose a path outside it')

@@ -5,6 +5,32 @@ import os
 from .common import (add_data_args, add_window_args, check_output, G0, GRAVITY, load_data, ranged,
                      UsageError)
 
+REPORT_FILES = ('report.md', 'gap.png', 'probes.png')
+"""Files ``--report`` writes (plus one ``residuals_stepK.png`` per model step)."""
+
+
+def report_files(folder):
+    """Return the names the report would write in ``folder`` that may exist already."""
+    names = list(REPORT_FILES)
+    if os.path.isdir(folder):
+        names += sorted(n for n in os.listdir(folder)
+                        if n.startswith('residuals_step') and n.endswith('.png'))
+    return names
+
+
+def _write_report(result, folder):
+    """Write the report; a folder made for it goes again when writing fails."""
+    from ..dataio.atomic import make_parents
+    from ..modelgap.report import write_report
+    made = make_parents(folder)
+    try:
+        write_report(result, folder)
+    except BaseException:
+        if made:                    # ours alone: take out what was written in it
+            import shutil
+            shutil.rmtree(made[0], ignore_errors=True)
+        raise
+
 
 def add_arguments(p):
     """Add the options of ``diagnose`` to its parser."""
@@ -24,17 +50,18 @@ def run(args, out):
     """Run ``accel-calib diagnose``; return the exit status."""
     from ..modelgap import diagnose
     if args.report:
-        check_output(os.path.join(args.report, 'report.md'), args.data, what='report')
-        if os.path.exists(args.report) and not os.path.isdir(args.report):
+        if os.path.lexists(args.report) and not os.path.isdir(args.report):
             raise UsageError(f'accel-calib: --report {args.report} exists and is not a folder')
+        check_output(args.report, args.data, what='--report', folder=True)
+        for name in report_files(args.report):
+            check_output(os.path.join(args.report, name), args.data, what='--report')
     samples = load_data(args)
     result = diagnose(samples, baseline=args.baseline, gravity=args.gravity,
                       min_duration_s=args.min_window_s,
                       threshold_factor=args.threshold_factor,
                       max_weight_s=args.max_weight_s, min_effect_mg=args.min_effect_mg)
     if args.report:
-        from ..modelgap.report import write_report
-        write_report(result, args.report)
+        _write_report(result, args.report)
     if args.json:
         out(result.summary())
     else:

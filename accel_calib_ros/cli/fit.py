@@ -8,7 +8,7 @@ import time
 import numpy as np
 
 from .common import (add_data_args, add_window_args, check_output, G0, GRAVITY, load_data,
-                     ranged, same_file, UsageError)
+                     ranged, sensor_id, STDOUT, UsageError)
 from ..core.accel.calibration import calibrate, METHODS
 from ..core.errors import CalibrationError, InputError
 from ..core.windows import DEFAULTS, detect_static_windows
@@ -38,14 +38,18 @@ def add_arguments(p):
     p.add_argument('--force', action='store_true',
                    help='write the calibration even if the fit did not converge (loud '
                         'warning; JSON still says converged false)')
-    p.add_argument('-o', '--output', help='write the calibration YAML here (atomically)')
+    p.add_argument('-o', '--output', help='write the calibration YAML here (atomically; "-": '
+                                          'standard output, the summary then goes to stderr)')
     p.add_argument('--json', action='store_true', help='print one JSON object')
     add_window_args(p)
     g = p.add_argument_group('per-sensor history')
     g.add_argument('--history', nargs='?', const='', default=None, metavar='DB',
-                   help='keep the windows in this SQLite history (default next to the '
-                        'calibration file of the nodes) and fit on all windows of --sensor')
-    g.add_argument('--sensor', help='sensor id in the history (firmware id, port or name)')
+                   help='fit on all windows of --sensor kept in this SQLite history (default '
+                        'next to the calibration file of the nodes); an accepted fit adds its '
+                        'windows and calibration as one session, a refused one adds nothing')
+    g.add_argument('--sensor', type=sensor_id,
+                   help='sensor id in the history (firmware id, port or name; surrounding '
+                        'spaces are dropped)')
 
 
 def add_imu_arguments(p):
@@ -102,51 +106,72 @@ def _history_path(args):
 
 def history_observations(args, samples, obs):
     """
-    Add this recording's windows to the history; return the observations of all of them.
+    Return the observations of this recording's windows joined to the sensor's history.
+
+    Nothing is written here: the history gets this session only if the fit is accepted
+    (:func:`record_fit`), so a refused or failed fit leaves it as it was.
 
     :param args: parsed ``fit`` arguments (``history`` not None).
     :param samples: the loaded recording.
     :param obs: this recording's observations (static windows, outliers already dropped:
-        see ``_observations``); changed in place.
+        see ``_observations``); changed in place (``obs.session`` keeps this recording's
+        windows for :func:`record_fit`).
     :return: ``obs`` with readings (N, 3), weights (N,), temps (N,), count N and gyro means
         (N, 3) rad/s (NaN rows where a session had no gyro) over every kept window of the
-        sensor.
+        sensor and this recording's (a window kept already counts once).
     """
     if args.mode != 'windows':
         raise UsageError('accel-calib: fit --history works on static windows (--mode windows)')
     if not args.sensor:
         raise UsageError('accel-calib: fit --history needs --sensor NAME (whose history it '
                          'is)')
-    from ..dataio.history import History
+    from ..dataio.history import History, new_session_id
     path = _history_path(args)
-    if same_file(path, args.data) or same_file(path, args.output):
-        raise UsageError('accel-calib: the history database must not be the data or the '
-                         'output file')
+    check_output(path, args.data, args.output, what='--history')
     t = samples.t
     if len(t) and t[0] > 1e9:            # stamps are already Unix times (a rosbag)
         when = obs.t_mid
     else:                                # a CSV from 0: assume it was just recorded
         when = time.time() - (t[-1] - obs.t_mid) if len(t) else obs.t_mid
-    with History(path) as h:
-        if obs.count:
-            h.add_windows(args.sensor, obs.readings, obs.temps, obs.weights, when, obs.gyro)
-        kept = h.windows(args.sensor)
+    gyro = np.full((obs.count, 3), np.nan) if obs.gyro is None else obs.gyro
+    temps = np.full(obs.count, np.nan) if obs.temps is None else obs.temps
+    new = {'mean': obs.readings, 'temp': temps, 'weight': obs.weights,
+           'time_s': np.broadcast_to(np.asarray(when, float), (obs.count,)), 'gyro_mean': gyro}
+    kept = {'mean': np.zeros((0, 3)), 'temp': np.zeros(0), 'weight': np.zeros(0),
+            'time_s': np.zeros(0), 'gyro_mean': np.zeros((0, 3))}
+    if os.path.exists(path) and not (os.path.isfile(path) and os.path.getsize(path) == 0):
+        with History(path, readonly=True) as h:
+            kept = h.windows(args.sensor)
+            h.calibrations(args.sensor)         # damage is named now, before any fit
+    old = set(zip(*(kept['mean'].T), kept['weight']))
+    fresh = np.array([(tuple(m) + (w,)) not in old for m, w in zip(new['mean'], new['weight'])],
+                     bool).reshape(-1)
+    obs.session = {'id': new_session_id(), 'path': path, 'when': new['time_s'],
+                   'means': obs.readings, 'temps': obs.temps, 'weights': obs.weights,
+                   'gyro': obs.gyro}
+    union = {k: np.concatenate([kept[k], new[k][fresh]]) for k in new}
+    order = np.argsort(union['time_s'], kind='stable')
     print(f'accel-calib: history {path}: {obs.count} windows from this recording, '
-          f'{len(kept["mean"])} kept for sensor {args.sensor}', file=sys.stderr)
-    obs.readings, obs.weights, obs.temps = kept['mean'], kept['weight'], kept['temp']
-    obs.gyro, obs.count = kept['gyro_mean'], len(kept['mean'])
+          f'{len(kept["mean"])} kept for sensor {args.sensor}, {len(order)} fitted',
+          file=sys.stderr)
+    obs.readings, obs.weights = union['mean'][order], union['weight'][order]
+    obs.temps, obs.gyro = union['temp'][order], union['gyro_mean'][order]
+    obs.count = len(order)
     return obs
 
 
-def record_fit(args, cal, temps=None):
+def record_fit(args, cal, obs):
     """
-    Record a fitted calibration in the sensor's history.
+    Record an accepted fit in the sensor's history: its windows and calibration, one session.
 
     :param args: parsed ``fit`` arguments.
-    :param cal: the Calibration.
-    :param temps: temperatures of the windows it used, °C (for its temperature range).
+    :param cal: the accepted Calibration.
+    :param obs: the observations of :func:`history_observations` (``obs.temps`` over all
+        windows fitted give the temperature range; ``obs.session`` this recording's).
+    :return: dict db, session, windows_added.
     """
     from ..dataio.history import History
+    temps = obs.temps
     if getattr(cal, 'temperature_range_c', None) is None and temps is not None:
         finite = np.asarray(temps, float)
         finite = finite[np.isfinite(finite)]
@@ -157,8 +182,13 @@ def record_fit(args, cal, temps=None):
         value = predicted_accuracy(cal.T, cal.covariance, cal.gravity)
         if math.isfinite(value):
             cal.predicted_accuracy = value
-    with History(_history_path(args)) as h:
-        h.add_calibration(args.sensor, cal)
+    s = obs.session
+    with History(s['path']) as h:
+        added = h.record_session(args.sensor, s['id'], cal, s['means'], s['temps'],
+                                 s['weights'], s['when'], s['gyro'])
+    print(f'accel-calib: history {s["path"]}: session {s["id"]} recorded for sensor '
+          f'{args.sensor} ({added} new windows and the calibration)', file=sys.stderr)
+    return {'db': s['path'], 'session': s['id'], 'windows_added': added}
 
 
 class _Observations:
@@ -328,7 +358,10 @@ def _not_fitted_summary(samples, reason):
 
 def run(args, out):
     """Run ``accel-calib fit``; return the exit status."""
-    check_output(args.output, args.data)
+    if args.output == STDOUT and args.json:
+        raise UsageError('accel-calib: fit -o - writes the YAML to standard output: leave out '
+                         '--json')
+    check_output(args.output, args.data, stdout=True)
     samples = load_data(args)
     obs = None
     try:
@@ -376,19 +409,25 @@ def run(args, out):
         print(f'accel-calib: warning: {warning}', file=sys.stderr)
     if refusal is None:
         warn_imu((gyro, mag))
-    if refusal is None and args.output:
+    if refusal is None and args.output == STDOUT:
+        from ..dataio.calibration_file import calibration_yaml
+        sys.stdout.write(calibration_yaml(cal))
+        sys.stdout.flush()
+    elif refusal is None and args.output:
         from ..dataio.calibration_file import save_calibration
         save_calibration(cal, args.output)
     if refusal is None and getattr(args, 'history', None) is not None:
-        record_fit(args, cal, obs.temps)
+        extra['history'] = record_fit(args, cal, obs)
     summary = _fit_summary(cal, extra)
     summary.update(_imu_summary(gyro, mag, refusal))
     if args.json:
         summary.pop('sensor_lines')
         out(summary)
     else:
-        _print_fit(cal, summary, obs.count, args.mode, len(samples), obs.dropped,
-                   args.output if refusal is None else None)
+        import contextlib
+        with contextlib.redirect_stdout(sys.stderr if args.output == STDOUT else sys.stdout):
+            _print_fit(cal, summary, obs.count, args.mode, len(samples), obs.dropped,
+                       args.output if refusal is None and args.output != STDOUT else None)
     if refusal is not None:
         raise CalibrationError(refusal)
     return 0

@@ -26,7 +26,7 @@ import time
 import numpy as np
 
 from .common import (check_output, G0, GRAVITY, non_negative, positive, positive_upto, ranged,
-                     same_file, SEED, TEMPERATURE, UsageError)
+                     same_file, SEED, sensor_id, TEMPERATURE, UsageError)
 from .guide_session import GuideSession
 from .guide_sources import RosSource, SerialSource, SimulatedSource
 from ..core.advice import DEFAULT_TARGET, MIN_WINDOWS, pose_name
@@ -58,8 +58,9 @@ def add_arguments(p):
     p.add_argument('--history', nargs='?', const='', default=None, metavar='DB',
                    help='keep the windows and the calibration in this per-sensor history '
                         '(default next to the calibration file)')
-    p.add_argument('--sensor', help='sensor id in the history (default: the port, the topic '
-                                    'or "simulated-SEED")')
+    p.add_argument('--sensor', type=sensor_id,
+                   help='sensor id in the history (default: the port, the topic or '
+                        '"simulated-SEED")')
     p.add_argument('--timeout', type=positive, default=None,
                    help='give up after this many wall-clock seconds')
     g = p.add_argument_group('serial port')
@@ -262,16 +263,20 @@ def run(args, out):
     output = args.output or default_calibration_path()
     check_output(output, args.port, what='-o')
     check_output(args.record, args.port, what='--record')
+    if args.record and not os.path.isdir(os.path.dirname(os.path.abspath(args.record))):
+        raise UsageError(f'accel-calib: --record {args.record}: its folder does not exist')
     if same_file(args.record, output):
         raise UsageError('accel-calib guide: --record and -o must be different files')
     history = None
     if args.history is not None:
         from ..dataio.history import default_history_path
         history = args.history or default_history_path()
+        check_output(history, args.port, what='--history')
         if any(same_file(history, f) for f in (output, args.record)):
             raise UsageError('accel-calib guide: the history must not be the output or '
                              'the record file')
-        args.sensor = args.sensor or args.port or args.topic or f'simulated-{args.seed}'
+        args.sensor = args.sensor or sensor_id(args.port or args.topic
+                                               or f'simulated-{args.seed}')
     try:
         from rich.console import Console
         from rich.live import Live
@@ -341,9 +346,9 @@ def run(args, out):
                              args.max_predicted_error)
         else:
             console.print(message or 'stopped: nothing written')
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as err:      # Ctrl-C, SIGTERM, SIGHUP (see cli.main)
         console.print('interrupted: nothing written')
-        status = 130
+        status = 128 + getattr(err, 'signum', 2)
     finally:
         keys.close()
         source.close()
@@ -406,16 +411,17 @@ def _finish(session, output, label, console, history=None, sensor=None,
     console.print(f'enough: predicted accuracy {adv.predicted_accuracy:.4f} m/s² ≤ target '
                   f'{adv.target:.4f} m/s² after {len(session.windows)} poses')
     console.print(f'wrote calibration {output}')
-    if history:
-        from ..dataio.history import History
+    if history:             # one session: its windows and calibration, one transaction
+        from ..dataio.history import History, new_session_id
         means, weights, temps, _ = session.arrays()
         t_mid = np.array([w['t_mid'] for w in session.windows])
         now = time.time()
+        run_id = new_session_id()
         with History(history) as h:
-            h.add_windows(sensor, means, temps, weights, now - (t_mid.max() - t_mid))
-            h.add_calibration(sensor, cal, windows=len(means))
+            h.record_session(sensor, run_id, cal, means, temps, weights,
+                             now - (t_mid.max() - t_mid), windows=len(means))
         console.print(f'history {history}: {len(means)} windows and the calibration kept '
-                      f'for sensor {sensor}')
+                      f'for sensor {sensor} (session {run_id})')
     return 0
 
 

@@ -1,10 +1,11 @@
 """``accel-calib simulate``: a calibration session of a simulated MPU-9250, streamed to a file."""
 
 import os
+import sys
 
 import numpy as np
 
-from .common import (check_output, check_suffix, G0, GRAVITY, MAX_POSES, ranged, SEED,
+from .common import (check_output, check_suffix, G0, GRAVITY, MAX_POSES, ranged, SEED, STDOUT,
                      TEMPERATURE, UsageError)
 
 
@@ -14,7 +15,8 @@ MAX_SIMULATED_SAMPLES = 50_000_000
 def add_arguments(p):
     """Add the options of ``simulate`` to its parser."""
     p.add_argument('-o', '--output', required=True,
-                   help='CSV, or rosbag2 when it ends in .mcap or .db3')
+                   help='CSV, or rosbag2 when it ends in .mcap or .db3 ("-": CSV on standard '
+                        'output, the summary then goes to stderr)')
     p.add_argument('--poses', default='24',
                    help='number of random poses, "faces" (six faces) or "sunxu:N" '
                         '(Sun & Xu Euler-angle poses) (default 24)')
@@ -102,12 +104,16 @@ def run(args, out):
     from ..core import simulate as sim
     from ..dataio.recording import write_bag, write_samples_csv
     from .progress import Progress
-    check_output(args.truth, args.output, what='--truth')
-    check_output(args.output, args.noise_from)
-    check_output(args.truth, args.noise_from, what='--truth')
-    if args.output and os.path.isdir(os.path.expanduser(args.output)):
-        raise UsageError(f'accel-calib: output {args.output} is a directory')
-    check_suffix(args.output, ('.csv', '.mcap', '.db3'), 'simulate -o')
+    if args.output == STDOUT and args.json:
+        raise UsageError('accel-calib: simulate -o - writes the CSV to standard output: '
+                         'leave out --json')
+    check_output(args.truth, args.output, args.noise_from, what='--truth')
+    if args.truth and not os.path.isdir(os.path.dirname(os.path.abspath(args.truth))):
+        raise UsageError(f'accel-calib: --truth {args.truth}: its folder does not exist (the '
+                         'recording would be written and the truth lost)')
+    check_output(args.output, args.noise_from, stdout=True)
+    if args.output != STDOUT:
+        check_suffix(args.output, ('.csv', '.mcap', '.db3'), 'simulate -o')
     rng = np.random.default_rng(args.seed)
     effects = [e.strip() for e in args.effects.split(',') if e.strip()]
     known = ('scale_nonlinearity', 'temperature_bias', 'temperature_scale', 'bias_drift',
@@ -179,8 +185,9 @@ def run(args, out):
     if args.json:
         out(summary)
     else:
-        print(f'simulated {len(directions)} poses, {total} samples '
-              f'({last_t[0]:.1f} s) -> {args.output}')
+        print(f'simulated {len(directions)} poses, {total} samples ({last_t[0]:.1f} s) -> '
+              f'{"standard output" if args.output == STDOUT else args.output}',
+              file=sys.stderr if args.output == STDOUT else sys.stdout)
     return 0
 
 

@@ -9,7 +9,7 @@ import os
 
 import numpy as np
 
-from .common import check_output, MAX_POSES, UsageError
+from .common import check_link_output, check_output, MAX_POSES, UsageError
 
 
 def _check_device_args(args):
@@ -38,11 +38,11 @@ def _check_device_args(args):
     finite('duration', 1e-3, 1e7)
     finite('unplug_s', 0.0, 3600.0)
     poses = getattr(args, 'poses', None)            # a pose file is an input too
-    check_output(getattr(args, 'truth_out', None), getattr(args, 'link', None),
-                 poses if poses and os.path.isfile(poses) else None,
+    poses = poses if poses and os.path.isfile(poses) else None
+    link = getattr(args, 'link', None)
+    check_output(getattr(args, 'truth_out', None), link, poses,
                  getattr(args, 'noise_from', None), what='--truth-out')
-    check_output(getattr(args, 'link', None), poses if poses and os.path.isfile(poses)
-                 else None, getattr(args, 'noise_from', None), what='--link')
+    check_link_output(link, poses, getattr(args, 'noise_from', None), what='--link')
 
 
 def add_arguments(p):

@@ -24,7 +24,6 @@ writer puts the same vector in ``gyro_bias_rad_s`` and ``gyro.bias``; the loader
 
 import math
 import os
-import stat
 
 import numpy as np
 import yaml
@@ -153,28 +152,68 @@ def calibration_to_yaml(cal):
                           default_flow_style=None, width=100, allow_unicode=True)
 
 
-def save_calibration(cal, path):
+def calibration_yaml(cal):
     """
-    Write ``cal`` to ``path`` atomically, creating the directory.
+    Return the YAML text :func:`save_calibration` writes (checked by the loader first).
 
-    :raises CalibrationError: the calibration holds non-finite or implausible values
-        (nothing is written; an existing file is left as it was).
-    :raises OSError: the file system refused.
+    :raises CalibrationError: the calibration holds non-finite or implausible values.
     """
     d = calibration_to_dict(cal)
     try:
         calibration_from_dict(d)
     except InputError as err:
         raise CalibrationError(f'refusing to write the calibration: {err}') from None
-    text = yaml.safe_dump(d, sort_keys=False, default_flow_style=None, width=100,
+    return yaml.safe_dump(d, sort_keys=False, default_flow_style=None, width=100,
                           allow_unicode=True)
+
+
+def save_calibration(cal, path):
+    """
+    Write ``cal`` to ``path`` atomically, creating the directory.
+
+    Folders it creates are removed again when the write fails. The target must be a
+    regular file or missing, reached through no other user's link
+    (:func:`dataio.atomic.output_target`).
+
+    :raises CalibrationError: the calibration holds non-finite or implausible values
+        (nothing is written; an existing file is left as it was).
+    :raises UnsafeOutput: the path may not be written (an InputError).
+    :raises OSError: the file system refused.
+    """
+    text = calibration_yaml(cal)
     from .atomic import atomic_write_text
-    directory = os.path.dirname(os.path.abspath(os.fspath(path)))
-    os.makedirs(directory, exist_ok=True)
-    atomic_write_text(path, text)
+    atomic_write_text(path, text, make_dirs=True)
 
 
 # -- reading ---------------------------------------------------------------------------
+
+class UniqueKeyLoader(yaml.SafeLoader):
+    """A YAML SafeLoader that refuses a mapping with the same key twice (no silent last-win)."""
+
+    def construct_mapping(self, node, deep=False):
+        """Build a mapping; a repeated key is a ConstructorError naming it and its line."""
+        if isinstance(node, yaml.MappingNode):
+            self.flatten_mapping(node)
+            seen = {}
+            for key_node, _ in node.value:
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    hash(key)
+                except TypeError:
+                    continue                     # the base class words this one
+                if key in seen:
+                    shown = repr(key) if len(repr(key)) <= 40 else repr(key)[:39] + '…'
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f'duplicate key {shown} (line {seen[key] + 1} and line '
+                        f'{key_node.start_mark.line + 1}): say it once', key_node.start_mark)
+                seen[key] = key_node.start_mark.line
+        return super().construct_mapping(node, deep)
+
+
+def load_yaml(text):
+    """Parse YAML text safely, refusing duplicate keys (yaml.YAMLError on any problem)."""
+    return yaml.load(text, Loader=UniqueKeyLoader)     # noqa: S506 - a SafeLoader subclass
+
 
 class _Bad(Exception):
     """Internal: a validation failure with a one-line reason."""
@@ -223,6 +262,17 @@ def _string(value, name, max_len=1000):
     if len(text) > max_len:
         raise _Bad(f'{name} is longer than {max_len} characters')
     return text
+
+
+def _found(value):
+    """Say what a value is, for a message: type and (short) value."""
+    kinds = {bool: 'the boolean', str: 'the string', int: 'the integer', float: 'the number',
+             type(None): 'nothing (the key is missing or empty)'}
+    kind = kinds.get(type(value), f'a {type(value).__name__}')
+    if value is None:
+        return kind
+    text = repr(value)
+    return f'{kind} {text if len(text) <= 30 else text[:29] + "…"}'
 
 
 def _optional(d, key, parse):
@@ -320,9 +370,8 @@ def _calibration(d):
     if d.get('format') != FORMAT:
         raise _Bad(f'not an accel_calib_ros calibration file (format is not {FORMAT})')
     version = d.get('version')
-    if version != VERSION or isinstance(version, bool):
-        raise _Bad(f'calibration file version {_string(version, "version")[:20]!r} is not '
-                   f'supported (this is version {VERSION})')
+    if version != VERSION or isinstance(version, bool) or not isinstance(version, int):
+        raise _Bad(f'version must be the integer {VERSION}, found {_found(version)}')
     method = _string(d.get('method'), 'method', 40)
     if method not in METHODS:
         raise _Bad(f'method {method!r} is not one of {", ".join(METHODS)}')
@@ -430,10 +479,9 @@ def _load(path):
     try:
         if os.path.isdir(path):
             raise InputError(f'calibration file {path} is a directory')
-        if os.path.exists(path) and not stat.S_ISREG(os.stat(path).st_mode):
-            # a FIFO or a terminal would block the reader (and a node) forever
-            raise InputError(f'calibration file {path} is not a regular file')
-        with open(path, 'rb') as f:
+        # a FIFO or a terminal would block the reader (and a node) forever
+        from .atomic import open_regular
+        with open_regular(path) as f:
             data = f.read(MAX_FILE_BYTES + 1)
     except FileNotFoundError:
         raise InputError(f'calibration file not found: {path}') from None
@@ -448,7 +496,7 @@ def _load(path):
         raise InputError(f'calibration file {path} is not UTF-8 text (byte {err.start})') \
             from None
     try:
-        parsed = yaml.safe_load(text)
+        parsed = load_yaml(text)
     except yaml.YAMLError as err:
         first = str(err).splitlines()[0] if str(err) else 'syntax error'
         raise InputError(f'calibration file {path} is not valid YAML: {first}') from None

@@ -20,7 +20,7 @@ import warnings
 
 import numpy as np
 
-from .atomic import atomic_path
+from .atomic import atomic_file, regular_opener
 from .formats import (GYRO_COLUMNS, listed, MAG_COLUMNS, MAX_LISTED, one_line, REQUIRED_COLUMNS,
                       STANDARD_COLUMNS)
 from ..core.errors import InputError
@@ -37,7 +37,7 @@ def _open_text(path):
     if path.is_dir():
         raise InputError(f'{path}: is a directory, not a CSV file')
     try:
-        return open(path, encoding='utf-8-sig', newline='')
+        return open(path, encoding='utf-8-sig', newline='', opener=regular_opener)
     except PermissionError:
         raise InputError(f'{path}: cannot read the file (permission denied)') from None
     except OSError as exc:
@@ -50,22 +50,53 @@ def _is_data_line(line):
     return bool(stripped) and not stripped.startswith('#')
 
 
+MAX_HEADER_CHARS = 1 << 16
+"""Longest header (or comment) line read, characters: a longer one is not a CSV header."""
+
+
 def _read_header(f, path):
     """
     Read up to and including the header row.
 
+    A line is read at most ``MAX_HEADER_CHARS`` at a time, so a file with no line break
+    (a JSON file, a binary blob) is refused without being read whole.
+
     :return: (column names, lowercased and stripped; 1-based line number of the header).
     """
     lineno = 0
-    for line in f:
+    while True:
+        line = f.readline(MAX_HEADER_CHARS + 1)
+        if not line:
+            raise InputError(f'{path}: the file is empty; expected a header row '
+                             f'({", ".join(REQUIRED_COLUMNS)}, ...) and data rows')
         lineno += 1
+        if len(line) > MAX_HEADER_CHARS:
+            raise InputError(f'{path}, line {lineno}: no line break in the first '
+                             f'{MAX_HEADER_CHARS} characters{_looks_like(line)}; expected a '
+                             f'CSV header row ({", ".join(REQUIRED_COLUMNS)}, ...)')
         if _is_data_line(line):
             break
-    else:
-        raise InputError(f'{path}: the file is empty; expected a header row '
-                         f'({", ".join(REQUIRED_COLUMNS)}, ...) and data rows')
-    names = [c.strip().lower() for c in next(csv.reader([line]))]
+    try:
+        names = [c.strip().lower() for c in next(csv.reader([line]))]
+    except (csv.Error, StopIteration) as exc:
+        raise InputError(f'{path}, line {lineno}: malformed CSV header ({one_line(exc)})') \
+            from None
     return names, lineno
+
+
+def _looks_like(text):
+    """Hint at what a file that is not a CSV is (from its first characters)."""
+    head = text.lstrip('\ufeff \t\r\n')[:1]
+    return {'{': ' (it looks like JSON)', '[': ' (it looks like JSON)',
+            '<': ' (it looks like XML or HTML)'}.get(head, '')
+
+
+def _shown_names(names, limit=8, width=30):
+    """Show header names in a message: at most ``limit`` of them, each cut to ``width``."""
+    shown = [repr(n if len(n) <= width else n[:width] + '…') for n in names[:limit]]
+    if len(names) > limit:
+        shown.append(f'and {len(names) - limit} more')
+    return ', '.join(shown)
 
 
 def _looks_numeric(text):
@@ -83,7 +114,7 @@ def _column_layout(names, path):
 
     :return: dict with 't', 'ax', 'ay', 'az' and, when present, 'temp' and 'gx', 'gy', 'gz'.
     """
-    found = ', '.join(repr(n) for n in names)
+    found = _shown_names(names)
     missing = [c for c in REQUIRED_COLUMNS if c not in names]
     if missing:
         if names and all(_looks_numeric(n) for n in names if n):
@@ -93,6 +124,7 @@ def _column_layout(names, path):
         hint = ''
         if len(names) == 1 and (';' in names[0] or '\t' in names[0]):
             hint = ' (the file must be comma-separated)'
+        hint = hint or _looks_like(names[0] if names else '')
         raise InputError(f'{path}: missing required column(s) {", ".join(missing)}; '
                          f'found columns: {found}{hint}')
     layout = {}
@@ -238,8 +270,9 @@ def _parse_careful(path, header_lineno, layout, names):
                 try:
                     float(v)
                 except ValueError:
+                    shown = v if len(v) <= 40 else v[:40] + '…'
                     raise InputError(f'{path}, line {lines[i]}: column {name!r} holds '
-                                     f'{v!r}, not a number') from None
+                                     f'{shown!r}, not a number') from None
             raise  # pragma: no cover - numpy and float() disagree
     return out, np.asarray(lines)
 
@@ -322,8 +355,13 @@ def _open_csv(path):
     return f, names, header_lineno, layout
 
 
-def load_csv(path, on_read=None):
-    """Read the spec CSV into (unvalidated but checked) Samples."""
+def load_csv(path, on_read=None, time_unit='s'):
+    """
+    Read the spec CSV into (unvalidated but checked) Samples.
+
+    :param time_unit: unit of the ``t`` column ('s', 'ms', 'us' or 'ns'; see
+        :func:`check_time_spacing`).
+    """
     try:
         f, names, header_lineno, layout = _open_csv(path)
         with f:
@@ -342,10 +380,12 @@ def load_csv(path, on_read=None):
         raise InputError(f'{path}: not a text CSV file (it is not UTF-8 text)') from None
     except OSError as exc:
         raise InputError(f'{path}: cannot read the file ({exc.strerror or exc})') from None
-    return _checked_samples(path, columns, lines, header_lineno)
+    samples = _checked_samples(path, seconds(columns, time_unit), lines, header_lineno)
+    check_time_spacing(path, samples.t, time_unit)
+    return samples
 
 
-def iter_csv(path, chunk_rows, on_read=None):
+def iter_csv(path, chunk_rows, on_read=None, time_unit='s'):
     """Yield checked Samples pieces of a CSV file, ``chunk_rows`` data lines at a time."""
     try:
         f, names, header_lineno, layout = _open_csv(path)
@@ -357,9 +397,11 @@ def iter_csv(path, chunk_rows, on_read=None):
                                                    _mag_positions(layout)):
                     if on_read is not None:
                         on_read(nbytes)
-                    columns = _columns(block, used)
+                    columns = seconds(_columns(block, used), time_unit)
                     piece = _checked_samples(path, columns, None, header_lineno, offset,
                                              t_before)
+                    if offset == 0:
+                        check_time_spacing(path, piece.t, time_unit)
                     offset += len(piece)
                     t_before = piece.t[-1]
                     yield piece
@@ -371,13 +413,79 @@ def iter_csv(path, chunk_rows, on_read=None):
                 raise InputError(f'{path}: the file has a header row but no data rows')
         if columns is None:   # the careful parse decides (e.g. an all-empty temp column)
             columns, lines = _parse_careful(path, header_lineno, layout, names)
-            whole = _checked_samples(path, columns, lines, header_lineno)
+            whole = _checked_samples(path, seconds(columns, time_unit), lines, header_lineno)
+            check_time_spacing(path, whole.t, time_unit)
             for a in range(0, len(whole), chunk_rows):
                 yield whole.subset(slice(a, a + chunk_rows))
     except UnicodeDecodeError:
         raise InputError(f'{path}: not a text CSV file (it is not UTF-8 text)') from None
     except OSError as exc:
         raise InputError(f'{path}: cannot read the file ({exc.strerror or exc})') from None
+
+
+TIME_UNITS = {'s': 1.0, 'ms': 1e-3, 'us': 1e-6, 'ns': 1e-9}
+"""Units the ``t`` column may be given in: seconds per unit."""
+TIME_UNIT_NAMES = {'s': 'seconds', 'ms': 'milliseconds', 'us': 'microseconds',
+                   'ns': 'nanoseconds'}
+PLAUSIBLE_RATE_HZ = (1.0, 100_000.0)
+"""Sample rates an IMU recording may have, Hz: a ``t`` spacing outside them is refused."""
+_TYPICAL_RATE_HZ = 200.0
+
+
+def seconds(columns, unit):
+    """
+    Convert the time column of parsed CSV columns from ``unit`` to seconds, in place.
+
+    :param columns: dict column name -> array, as parsed (or None / empty).
+    :param unit: 's', 'ms', 'us' or 'ns'.
+    :return: ``columns``.
+    :raises InputError: an unknown unit.
+    """
+    if unit not in TIME_UNITS:
+        raise InputError(f'unknown time unit {str(unit)[:20]!r}; use one of '
+                         f'{", ".join(TIME_UNITS)}')
+    if columns and unit != 's' and 't' in columns:
+        columns['t'] *= TIME_UNITS[unit]
+    return columns
+
+
+def check_time_spacing(path, t, unit='s'):
+    """
+    Refuse a time column whose spacing no IMU has: it is in another unit than said.
+
+    The median step between distinct times gives the sample rate, and so does the number
+    of samples over the duration; when neither lies in ``PLAUSIBLE_RATE_HZ`` the file is
+    refused, naming the unit that would make the rate plausible (milliseconds under ``t``
+    would otherwise give hundreds of false windows). Either one in range is enough: coarse
+    stamps (many samples per stamp) or one long gap do not make a file implausible.
+
+    :param path: the file, for the message.
+    :param t: (N,) times in seconds (already converted from ``unit``), increasing.
+    :param unit: the unit the file's numbers were read in.
+    :raises InputError: the rate is not an IMU's.
+    """
+    step = np.diff(t)
+    step = step[step > 0]
+    if not len(step):
+        return
+    low, high = PLAUSIBLE_RATE_HZ
+    mean_rate = (len(t) - 1) / (t[-1] - t[0])
+    step = float(np.median(step))
+    rate = 1.0 / step
+    if low <= rate <= high or low <= mean_rate <= high:    # coarse stamps, or a long gap
+        return
+    given = step / TIME_UNITS[unit]           # the step in the file's own numbers
+    fits = [(abs(np.log10(1.0 / (given * scale) / _TYPICAL_RATE_HZ)), u)
+            for u, scale in TIME_UNITS.items()
+            if u != unit and low <= 1.0 / (given * scale) <= high]
+    hint = 'check the t column'
+    if fits:
+        best = min(fits)[1]
+        hint = (f'if t is in {TIME_UNIT_NAMES[best]}, give --time-unit {best} (then '
+                f'{1.0 / (given * TIME_UNITS[best]):.4g} Hz)')
+    raise InputError(f'{path}: t steps by {given:.4g} (median): {rate:.4g} Hz in '
+                     f'{TIME_UNIT_NAMES[unit]}, not an IMU rate ({low:g} Hz .. '
+                     f'{high / 1e3:g} kHz); {hint}')
 
 
 def _checked_samples(path, columns, lines, header_lineno, row_offset=0, t_before=None):
@@ -575,7 +683,8 @@ def csv_writer(path, has_temp=False, has_gyro=False, extra_names=(), has_mag=Fal
     ``with`` block ends normally. On any exception (Ctrl-C included) it is removed and
     an existing ``path`` stays as it was.
 
-    :param path: the CSV file to create or replace.
+    :param path: the CSV file to create or replace; ``-`` writes to standard output
+        (not atomic: a pipe has no old content to keep).
     :param has_temp: the file has a ``temp`` column.
     :param has_gyro: the file has ``gx, gy, gz`` columns.
     :param extra_names: names of extra columns after the standard ones.
@@ -584,10 +693,14 @@ def csv_writer(path, has_temp=False, has_gyro=False, extra_names=(), has_mag=Fal
     :raises InputError: the file cannot be written.
     """
     _check_extra({name: np.zeros(0) for name in extra_names}, 0)
+    if os.fspath(path) == '-':
+        import sys
+        yield CsvWriter(sys.stdout, has_temp, has_gyro, extra_names, has_mag)
+        sys.stdout.flush()
+        return
     try:
-        with atomic_path(path) as tmp:
-            with open(tmp, 'w', encoding='utf-8', newline='') as f:
-                yield CsvWriter(f, has_temp, has_gyro, extra_names, has_mag)
+        with atomic_file(path, 'w', encoding='utf-8', newline='') as f:
+            yield CsvWriter(f, has_temp, has_gyro, extra_names, has_mag)
     except OSError as exc:
         raise InputError(f'{path}: cannot write ({exc.strerror or one_line(exc)})') from None
 

@@ -50,3 +50,37 @@ def listed(items, limit=MAX_LISTED):
     if len(items) > limit:
         head += f' (and {len(items) - limit} more)'
     return head
+
+
+MAX_MESSAGE = 200
+"""Longest error line printed, characters (a message quoting a huge input is cut)."""
+
+
+MAX_WORD = 48
+"""A longer word (a path, a quoted cell) is shortened first when a line is too long."""
+
+
+def _short(word, width=MAX_WORD):
+    if len(word) <= width:
+        return word
+    tail = width // 2
+    return word[:width - tail - 1] + '…' + word[-tail:]
+
+
+def message_line(text, limit=MAX_MESSAGE):
+    """
+    Return ``text`` as one printable line of at most ``limit`` characters.
+
+    Control, bidi and other invisible characters are shown escaped. A longer text has its
+    long words (paths, quoted data) shortened in their middle first, then, if still too
+    long, keeps its head and its end (where the advice usually is), joined by `` … ``.
+    """
+    text = ''.join(c if c.isprintable() else c.encode('unicode_escape').decode('ascii')
+                   for c in str(text))
+    if len(text) <= limit:
+        return text
+    text = ' '.join(_short(word) for word in text.split(' '))
+    if len(text) <= limit:
+        return text
+    tail = max(limit // 3, 20)
+    return text[:limit - tail - 3] + ' … ' + text[-tail:]

@@ -14,6 +14,7 @@ import os
 
 import numpy as np
 
+from .atomic import open_regular
 from ..core.errors import InputError
 
 MAX_BYTES = 20_000_000
@@ -31,11 +32,12 @@ def _read(path):
     if os.path.isdir(path):
         raise InputError(f'{what} is a directory')
     try:
-        if os.path.getsize(path) > MAX_BYTES:
+        with open_regular(path) as f:
+            data = f.read(MAX_BYTES + 1)
+        if len(data) > MAX_BYTES:
             raise InputError(f'{what} is larger than {MAX_BYTES // 1_000_000} MB: '
                              'not an allan --json result')
-        with open(path, 'rb') as f:
-            text = f.read().decode('utf-8')
+        text = data.decode('utf-8')
     except FileNotFoundError:
         raise InputError(f'{what}: no such file') from None
     except UnicodeDecodeError:
@@ -43,12 +45,30 @@ def _read(path):
     except OSError as err:
         raise InputError(f'{what}: {err.strerror or err}') from None
     try:
-        data = json.loads(text, parse_constant=lambda name: math.nan)
+        data = json.loads(text, parse_constant=lambda name: math.nan,
+                          object_pairs_hook=_unique_keys)
+    except _DuplicateKey as err:
+        raise InputError(f'{what}: {err}') from None
     except (ValueError, RecursionError) as err:
         raise InputError(f'{what} is not JSON ({str(err).splitlines()[0][:80]})') from None
     if not isinstance(data, dict):
         raise InputError(f'{what}: expected the JSON object of "accel-calib allan --json"')
     return data, what
+
+
+class _DuplicateKey(ValueError):
+    """Internal: a JSON object gives a key twice."""
+
+
+def _unique_keys(pairs):
+    """JSON object hook: refuse a key given twice (no silent last-win)."""
+    seen = set()
+    for key, _ in pairs:
+        if key in seen:
+            shown = repr(key) if len(repr(key)) <= 40 else repr(key)[:39] + '…'
+            raise _DuplicateKey(f'duplicate key {shown}: say it once')
+        seen.add(key)
+    return dict(pairs)
 
 
 def _number(value):

@@ -29,7 +29,15 @@ from ..core.errors import InputError
 __all__ = ['csv_writer', 'iter_samples', 'load_samples', 'write_bag', 'write_samples_csv']
 
 
-def load_samples(path, imu_topic=None, temp_topic=None, on_read=None, mag_topic=None):
+def _bag_time_unit(time_unit):
+    """Refuse a time unit other than seconds for a bag (its stamps are converted already)."""
+    if time_unit not in (None, 's'):
+        raise InputError(f'--time-unit {str(time_unit)[:20]} applies to CSV files only: rosbag2 '
+                         'stamps are nanoseconds, read as seconds already')
+
+
+def load_samples(path, imu_topic=None, temp_topic=None, on_read=None, time_unit='s',
+                 mag_topic=None):
     """
     Load a recording as validated ``Samples``.
 
@@ -38,6 +46,8 @@ def load_samples(path, imu_topic=None, temp_topic=None, on_read=None, mag_topic=
     :param temp_topic: bags only: the ``sensor_msgs/msg/Temperature`` topic (needed if
         several and none shares the Imu topic's namespace).
     :param on_read: CSV only: called with the characters read after each block (progress).
+    :param time_unit: CSV only: unit of the ``t`` column ('s', 'ms', 'us', 'ns'); a
+        spacing no IMU has is refused (``csv_io.check_time_spacing``).
     :param mag_topic: bags only: the ``sensor_msgs/msg/MagneticField`` topic (default: the
         only one, or the one beside the Imu topic).
     :return: Samples with t, accel and, when recorded, temp, gyro and mag.
@@ -50,10 +60,12 @@ def load_samples(path, imu_topic=None, temp_topic=None, on_read=None, mag_topic=
         raise InputError(f'{p}: no such file or directory')
     suffix = p.suffix.lower()
     if p.is_dir():
+        _bag_time_unit(time_unit)
         samples = load_bag(p, imu_topic, temp_topic, mag_topic)
     elif suffix == '.csv':
-        samples = load_csv(p, on_read)
+        samples = load_csv(p, on_read, time_unit or 's')
     elif suffix in BAG_SUFFIXES:
+        _bag_time_unit(time_unit)
         samples = load_bag(p, imu_topic, temp_topic, mag_topic)
     else:
         raise InputError(f'{p}: unsupported data file {suffix or "(no suffix)"}; '
@@ -65,7 +77,7 @@ def load_samples(path, imu_topic=None, temp_topic=None, on_read=None, mag_topic=
 
 
 def iter_samples(path, chunk_rows=CHUNK_ROWS, imu_topic=None, temp_topic=None, on_read=None,
-                 mag_topic=None):
+                 time_unit='s', mag_topic=None):
     """
     Load a recording piece by piece: a generator of validated ``Samples``.
 
@@ -79,18 +91,20 @@ def iter_samples(path, chunk_rows=CHUNK_ROWS, imu_topic=None, temp_topic=None, o
     :param imu_topic: bags only, as for ``load_samples``.
     :param temp_topic: bags only, as for ``load_samples``.
     :param on_read: CSV only: called with the characters read for each piece (progress).
+    :param time_unit: CSV only, as for ``load_samples``.
     :param mag_topic: bags only, as for ``load_samples``.
     :return: generator of Samples, in time order.
     :raises InputError: as ``load_samples``.
     """
     p = Path(path)
     if p.suffix.lower() == '.csv' and p.is_file():
-        for piece in iter_csv(p, chunk_rows, on_read):
+        for piece in iter_csv(p, chunk_rows, on_read, time_unit or 's'):
             try:
                 yield piece.validate()
             except InputError as exc:
                 raise InputError(f'{p}: {exc}') from None
         return
-    whole = load_samples(path, imu_topic=imu_topic, temp_topic=temp_topic, mag_topic=mag_topic)
+    whole = load_samples(path, imu_topic=imu_topic, temp_topic=temp_topic, time_unit=time_unit,
+                         mag_topic=mag_topic)
     for a in range(0, len(whole), chunk_rows):
         yield whole.subset(slice(a, a + chunk_rows))

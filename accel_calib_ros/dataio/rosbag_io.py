@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import fsync_directory, replace_into
+from .atomic import fsync_directory, output_target, replace_into, temp_name
 from .formats import ACCEPTED, BAG_SUFFIXES, IMU_TYPE, listed, MAG_TYPE, one_line, TEMP_TYPE
 from ..core.errors import InputError
 from ..core.samples import Samples
@@ -474,6 +474,18 @@ def _fsync_tree(directory):
     fsync_directory(directory)
 
 
+def _scratch_folder(parent, name):
+    """Make a private hidden folder next to the target (its name fits in NAME_MAX)."""
+    for _ in range(100):
+        scratch = parent / temp_name(str(parent), name, os.urandom(4).hex())
+        try:
+            scratch.mkdir(mode=0o700)
+        except FileExistsError:
+            continue
+        return scratch
+    raise FileExistsError(f'could not create a temporary folder in {parent}')
+
+
 def write_bag(path, samples, imu_topic='/imu/data_raw', temp_topic='/imu/temperature',
               frame_id='imu_link', storage=None, mag_topic='/imu/mag'):
     """
@@ -523,13 +535,13 @@ def write_bag(path, samples, imu_topic='/imu/data_raw', temp_topic='/imu/tempera
     if not single_file and os.path.lexists(target):
         raise InputError(f'{target} exists already; a rosbag2 directory is never overwritten, '
                          f'choose a new name')
-    parent = target.parent
+    real = Path(output_target(target, folder=not single_file))   # no foreign link, no device
+    parent = real.parent
     if not parent.is_dir():
         raise InputError(f'{target}: output directory {parent} does not exist')
     name = target.stem if single_file else target.name
     try:
-        import tempfile      # here, not at the top: reading a CSV does not pay for it
-        scratch = Path(tempfile.mkdtemp(prefix=f'.{name}.', suffix='.tmp', dir=parent))
+        scratch = _scratch_folder(parent, name)
     except OSError as exc:
         raise InputError(f'{target}: cannot write ({exc.strerror or one_line(exc)})') from None
     try:
@@ -538,9 +550,9 @@ def write_bag(path, samples, imu_topic='/imu/data_raw', temp_topic='/imu/tempera
                        frame_id, storage, mag_topic)
         _fsync_tree(bagdir)
         if single_file:
-            replace_into(bagdir / f'{name}{_STORAGE_SUFFIX[storage]}', str(target))
+            replace_into(bagdir / f'{name}{_STORAGE_SUFFIX[storage]}', str(real))
         else:
-            os.rename(bagdir, target)
+            os.rename(bagdir, real)
             fsync_directory(str(parent))
     except OSError as exc:
         raise InputError(f'{target}: cannot write ({exc.strerror or one_line(exc)})') from None

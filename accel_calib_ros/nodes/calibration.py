@@ -42,8 +42,8 @@ from sensor_msgs.msg import Imu, MagneticField, Temperature
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from .common import (calibration_path, declare_parameters, make_directory, Param, ParameterProblem,
-                     run)
+from .common import (calibration_path, declare_parameters, expand_path, make_directory, Param,
+                     ParameterProblem, run, unsafe_output)
 from ..core.accel.calibration import calibrate
 from ..core.accel.thermal import MIN_WINDOWS_PER_BAND
 from ..core.acceptance import review
@@ -64,6 +64,8 @@ accelerometer's bias does not repeat between poses better than about 0.5 mg (bia
 instability, hand and table vibration), and a 6-parameter ``gn`` fit leaves a
 residual of that order on a sensor with small cross-axis terms. Below this floor a
 residual is never a reason to refuse."""
+MIN_RATE_HZ = 1.0
+"""Lowest nonzero ``rate_hz`` accepted, Hz (an IMU below 1 Hz is a unit mistake)."""
 QUEUE_DEPTH = 200
 """Input queue depth (samples): 1 s at 200 Hz, 0.2 s at 1 kHz."""
 CHUNK = 100
@@ -126,8 +128,7 @@ PARAMS = [
           "YAML file written by ~/calibrate ('' = $ROS_HOME/accel_calib_ros/"
           'calibration.yaml); its directory is created'),
     Param('gravity', 9.80665, 'local gravity magnitude, m/s2', low=9.7, high=9.9),
-    Param('band_width_c', 10.0, 'width of a temperature band, degC', low=0.0, low_open=True,
-          high=100.0),
+    Param('band_width_c', 10.0, 'width of a temperature band, degC', low=0.1, high=100.0),
     Param('thermal', 'auto',
           'auto: temperature-band tables when >= 2 bands are filled; on; off',
           choices=THERMAL_MODES),
@@ -154,12 +155,13 @@ PARAMS = [
     Param('max_windows', 500, 'windows kept; the oldest are dropped beyond', low=10,
           high=100000),
     Param('max_weight_s', 5.0, 'a window weighs at most this many seconds of samples',
-          low=0.0, low_open=True, high=3600.0),
+          low=1e-3, high=3600.0),
     Param('rate_hz', 0.0,
-          'sample rate to start with, Hz; 0 = measure it from the stamps (always tracked)',
-          low=0.0, high=100000.0),
+          'sample rate to start with, Hz: 0 (measure it from the stamps; always tracked) '
+          f'or {MIN_RATE_HZ:g} .. 100000', low=0.0, high=100000.0),
     Param('sensor_id', '',
-          "name of the sensor in the history ('' = the messages' frame_id)"),
+          "name of the sensor in the history ('' = the messages' frame_id); printable, "
+          'surrounding spaces dropped'),
     Param('history', True,
           'record each saved calibration and its windows in the history database'),
     Param('history_file', '',
@@ -194,7 +196,15 @@ class CalibrationNode(Node):
         if self.params['threshold_factor'] and self.params['threshold_factor'] < 1.0:
             raise ParameterProblem("parameter 'threshold_factor' must be 0 or >= 1, got "
                                    f"{self.params['threshold_factor']!r}")
+        _check_rate(self.params['rate_hz'])
+        self.params['sensor_id'] = _sensor_param(self.params['sensor_id'])
+        expand_path(self.params['history_file'], 'history_file')
         self.path = calibration_path(self.params['calibration_file'])
+        files = (('calibration_file', self.path), ('history_file', self.history_path()))
+        for what, path in files:
+            reason = unsafe_output(path)
+            if reason:      # the file system may change: log it now, refuse each write
+                self.get_logger().error(f'{what}: {reason}; it will not be written')
         self._make_directory(self.path)
         self.windows = deque(maxlen=self.params['max_windows'])
         self.temperature = float('nan')
@@ -251,8 +261,20 @@ class CalibrationNode(Node):
         """Apply a runtime parameter change (called by the common mechanism)."""
         if changes.get('threshold_factor', 0.0) and changes['threshold_factor'] < 1.0:
             raise ParameterProblem("parameter 'threshold_factor' must be 0 or >= 1")
+        if 'rate_hz' in changes:
+            _check_rate(changes['rate_hz'])
+        if 'sensor_id' in changes:
+            self.params['sensor_id'] = _sensor_param(changes['sensor_id'])
+        if 'history_file' in changes:
+            reason = unsafe_output(self.history_path())
+            if reason:
+                raise ParameterProblem(f'history_file: {reason}')
         if 'calibration_file' in changes:
-            self.path = calibration_path(changes['calibration_file'])
+            path = calibration_path(changes['calibration_file'])
+            reason = unsafe_output(path)
+            if reason:
+                raise ParameterProblem(f'calibration_file: {reason}')
+            self.path = path
             self._make_directory(self.path)
         if 'max_windows' in changes:
             self.windows = deque(self.windows, maxlen=changes['max_windows'])
@@ -662,28 +684,33 @@ class CalibrationNode(Node):
         """Return the history database path ('' = next to the calibration file)."""
         value = self.params['history_file']
         if value:
-            return os.path.expanduser(value)
-        return os.path.join(os.path.dirname(os.path.abspath(self.path)), 'history.sqlite')
+            return expand_path(value, 'history_file')
+        return os.path.join(os.path.dirname(os.path.abspath(calibration_path(
+            self.params['calibration_file']))), 'history.sqlite')
 
     def record_history(self, cal, windows, weights, temps):
         """Record a saved calibration and its windows (a failure is logged, not fatal)."""
         if not self.params['history']:
             return
         import sqlite3
-        from ..dataio.history import History
-        sensor = cal.sensor_id or 'imu'
+        from ..dataio.history import History, new_session_id
+        try:
+            sensor = _sensor_param(cal.sensor_id or 'imu') or 'imu'
+        except ParameterProblem as err:     # a frame_id no sensor id may be
+            self.get_logger().warning(f'history not recorded: {err}')
+            return
         now = self.get_clock().now().nanoseconds * 1e-9
         times = np.array([w['t_mid'] for w in windows], float)
         if not np.all(np.isfinite(times) & (times > 1e9)):     # device clock: use now
             times = np.full(len(windows), now)
         gyro = np.array([w['gyro_mean'] if w.get('gyro_mean') is not None
                          else np.full(3, np.nan) for w in windows], float).reshape(-1, 3)
-        try:
+        try:            # one session: the windows and the calibration, one transaction
             with History(self.history_path()) as history:
-                history.add_windows(sensor, np.array([w['mean'] for w in windows], float),
-                                    temps, weights, times, gyro)
-                history.add_calibration(sensor, cal, windows=len(windows))
-        except (InputError, sqlite3.Error, OSError, ValueError) as err:
+                history.record_session(sensor, new_session_id(), cal,
+                                       np.array([w['mean'] for w in windows], float), temps,
+                                       weights, times, gyro, windows=len(windows))
+        except (InputError, ParameterProblem, sqlite3.Error, OSError, ValueError) as err:
             self.get_logger().warning(f'history not recorded: {err}')
 
     def _keep_level_trim(self, cal):
@@ -766,6 +793,24 @@ class CalibrationNode(Node):
                            'model does not include')
             self.get_logger().info(f'model-gap check: {gap["note"]}')
         return gap
+
+
+def _check_rate(rate_hz):
+    """Refuse a starting rate that is neither 0 (measure it) nor an IMU's."""
+    if rate_hz and rate_hz < MIN_RATE_HZ:
+        raise ParameterProblem(f"parameter 'rate_hz' must be 0 or >= {MIN_RATE_HZ:g} Hz, got "
+                               f'{rate_hz!r}')
+
+
+def _sensor_param(value):
+    """Normalise a sensor id parameter ('' stays '': the frame_id is used)."""
+    if not value:
+        return value
+    from ..dataio.sensor_id import normalise_sensor_id
+    try:
+        return normalise_sensor_id(value)
+    except InputError as err:
+        raise ParameterProblem(f"parameter 'sensor_id': {err}") from None
 
 
 def main(args=None):

@@ -276,17 +276,59 @@ def declare_parameters(node, specs, on_change=None):
     return values
 
 
-def calibration_path(value):
+def expand_path(value, name):
+    """
+    Expand a leading ``~`` or ``~user`` of a file parameter; refuse an unknown user.
+
+    :param value: the parameter's value.
+    :param name: the parameter's name, for the message.
+    :raises ParameterProblem: ``~user`` names no user (no folder literally named ``~user``
+        is ever created).
+    """
+    if not value.startswith('~'):
+        return value
+    expanded = os.path.expanduser(value)
+    if expanded.startswith('~'):
+        head = value.split(os.sep, 1)[0]
+        raise ParameterProblem(f'parameter {name!r}: there is no user to expand {head} to '
+                               f'(got {value!r})')
+    return expanded
+
+
+def calibration_path(value, name='calibration_file'):
     """
     Resolve a ``calibration_file`` parameter: '' means the default, ``~`` is expanded.
 
     :param value: value as read.
+    :param name: the parameter's name, for the message.
     :return: the path to use ($ROS_HOME/accel_calib_ros/calibration.yaml by default).
+    :raises ParameterProblem: ``~user`` names no user.
     """
     if value:
-        return os.path.expanduser(value)
+        return expand_path(value, name)
     from ..dataio.calibration_file import default_calibration_path
     return default_calibration_path()
+
+
+def unsafe_output(path):
+    """
+    Say why a node must not write ``path``, or None when it may.
+
+    The rules of every writer (:func:`dataio.atomic.output_target`): a device, a FIFO, a
+    socket or a directory is never replaced, and no other user's symbolic link is
+    followed. A node logs the reason and refuses the write; it never dies of it.
+
+    :param path: the file a node would write.
+    :return: the reason (one line), or None.
+    """
+    from ..dataio.atomic import output_target, UnsafeOutput
+    try:
+        output_target(path)
+    except UnsafeOutput as err:
+        return str(err)
+    except OSError as err:
+        return f'{path}: {err.strerror or err}'
+    return None
 
 
 def make_directory(path, logger=None):

@@ -271,8 +271,8 @@ PARAMS = [
     Param('calibration_file', '',
           "calibration YAML to apply ('' = $ROS_HOME/accel_calib_ros/calibration.yaml); "
           're-read whenever it changes'),
-    Param('reload_period_s', 0.25, 'how often the file is checked for changes, s', low=0.0,
-          low_open=True, high=60.0),
+    Param('reload_period_s', 0.25, 'how often the file is checked for changes, s',
+          low=0.01, high=60.0),
     Param('temperature_margin_c', 2.0,
           'warn when the temperature leaves the calibrated range by more than this, degC',
           low=0.0, high=100.0),

@@ -98,10 +98,8 @@ PARAMS = [
           'or from the receive time (host)', choices=TIMESTAMPS, read_only=True),
     Param('temperature_rate_hz', 10.0, 'imu/temperature publish rate, Hz (0 = every sample)',
           low=0.0, high=10000.0),
-    Param('reconnect_min_s', 0.2, 'first reconnect delay, s', low=0.0, low_open=True,
-          high=60.0),
-    Param('reconnect_max_s', 5.0, 'longest reconnect delay, s', low=0.0, low_open=True,
-          high=600.0),
+    Param('reconnect_min_s', 0.2, 'first reconnect delay, s', low=0.01, high=60.0),
+    Param('reconnect_max_s', 5.0, 'longest reconnect delay, s', low=0.01, high=600.0),
     Param('watchdog_s', 0.5, 'no valid frame for this long: diagnostics ERROR and the port '
           'is reopened, s', low=0.05, high=60.0),
 ]

@@ -17,6 +17,7 @@ v2's magnetometer block is the wire's to add).
 """
 
 import argparse
+import contextlib
 import errno
 import math
 import os
@@ -145,8 +146,10 @@ def _directions(args, rng):
     if args.poses == 'random':
         return random_directions(args.count or 12, rng)
     path = args.poses
+    from ..core.errors import InputError
+    from ..dataio.atomic import regular_opener
     try:
-        with open(path, encoding='utf-8') as f:
+        with open(path, encoding='utf-8', opener=regular_opener) as f:   # never a FIFO
             rows = []
             for number, line in enumerate(f, 1):
                 text = line.strip()
@@ -163,6 +166,8 @@ def _directions(args, rng):
                     raise DeviceError(f'{path}:{number}: expected x,y,z numbers')
     except OSError as err:
         raise DeviceError(f'cannot read pose file {path}: {err.strerror}')
+    except InputError as err:
+        raise DeviceError(f'pose file {err}') from None
     except UnicodeDecodeError:
         raise DeviceError(f'pose file {path} is not UTF-8 text') from None
     d = np.asarray(rows, float).reshape(-1, 3)
@@ -420,14 +425,22 @@ class Pty:
         os.set_blocking(self.master, False)
         self.path = os.ttyname(self.slave)
         self.link = link
-        if link:
-            tmp = f'{link}.tmp{os.getpid()}'
+        if link:        # a new link under a fresh name (never an existing file), renamed
+            from ..dataio.atomic import temp_name
+            folder, name = os.path.split(os.path.abspath(link))
+            for _ in range(100):
+                tmp = os.path.join(folder, temp_name(folder, name, os.urandom(4).hex()))
+                try:
+                    os.symlink(self.path, tmp)
+                    break
+                except FileExistsError:
+                    continue
             try:
-                os.unlink(tmp)
-            except FileNotFoundError:
-                pass
-            os.symlink(self.path, tmp)
-            os.replace(tmp, link)
+                os.replace(tmp, link)
+            except BaseException:
+                with contextlib.suppress(OSError):
+                    os.unlink(tmp)
+                raise
 
     def write(self, data):
         """Write what the pty takes; return the number of bytes dropped (buffer full)."""
@@ -487,7 +500,8 @@ def run(args):
         if args.truth_out:
             _write_truth(args.truth_out, sensor.truth())
     except DeviceError as err:
-        print(f'simulate-device: {err}', file=sys.stderr)
+        from ..dataio.formats import message_line
+        print(message_line(f'simulate-device: {err}'), file=sys.stderr)
         return 2
 
     flags = _Flags()
@@ -568,13 +582,14 @@ def run(args):
 
 def _write_truth(path, truth):
     import yaml
-    tmp = f'{path}.tmp{os.getpid()}'
+    from ..core.errors import InputError
+    from ..dataio.atomic import atomic_write_text
     try:
-        with open(tmp, 'w') as f:
-            yaml.safe_dump(truth, f, sort_keys=False)
-        os.replace(tmp, path)
+        atomic_write_text(path, yaml.safe_dump(truth, sort_keys=False))
+    except InputError as err:
+        raise DeviceError(str(err)) from None
     except OSError as err:
-        raise DeviceError(f'cannot write {path}: {err.strerror}')
+        raise DeviceError(f'cannot write {path}: {err.strerror or err}') from None
 
 
 def main(argv=None):
