@@ -104,12 +104,12 @@ def check_magnitude(si_accel, raw_accel=None, units='m/s2', counts_per_g=None,
         return              # exactly 0: a stuck sensor, which the commands name as such
     raw = si_accel if raw_accel is None else raw_accel
     raw_median = median_magnitude(raw)
-    expected = f'expected about {G0:.2f} m/s² (1 g) for a sensor on Earth'
+    expected = f'not about {G0:.2f} m/s² (1 g)'
     if units == 'counts':
         hint = ('check --counts-per-g / --range' + _offset_hint(raw, counts_offset))
         raise InputError(f'with --units counts ({counts_per_g:g} counts per g, offset '
-                         f'{counts_offset:g}) the median acceleration magnitude is '
-                         f'{median:.4g} m/s²; {expected}: {hint}')
+                         f'{counts_offset:g}) the median |a| is {median:.4g} m/s², {expected}: '
+                         f'{hint}')
     if units != 'g' and low <= raw_median <= high:
         hint = 'the data are in g: add --units g'
     elif units == 'g' and low * G0 <= raw_median <= high * G0:
@@ -120,7 +120,7 @@ def check_magnitude(si_accel, raw_accel=None, units='m/s2', counts_per_g=None,
     else:
         hint = 'give their unit with --units (m/s2, g or counts)'
     declared = f'{raw_median:.4g} g ({median:.4g} m/s²)' if units == 'g' else f'{median:.4g} m/s²'
-    raise InputError(f'the median acceleration magnitude is {declared}; {expected}: {hint}')
+    raise InputError(f'the median |a| is {declared}, {expected}: {hint}')
 
 
 def _offset_hint(raw, offset):
@@ -130,5 +130,5 @@ def _offset_hint(raw, offset):
         return ''
     centre = np.median(a, axis=0)
     if np.all(a.min(axis=0) >= 0) and np.all(np.abs(centre - 32768.0) < 16384.0):
-        return ('; the codes centre near 32768 (unsigned 16-bit): add --counts-offset 32768')
+        return '; codes centre near 32768 (unsigned): add --counts-offset 32768'
     return ''
