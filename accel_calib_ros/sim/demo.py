@@ -176,7 +176,7 @@ def _board_source(args, work, env, truth_path):
     :raises RuntimeError: not a source checkout, or the toolchain is missing (one line).
     """
     from .device import _write_truth, add_arguments, VirtualSensor
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     harness_src = os.path.join(root, 'test', 'hil', 'mpu_board.c')
     firmware = os.path.join(root, 'firmware')
     if not os.path.exists(harness_src) or not os.path.exists(os.path.join(firmware, 'Makefile')):
