@@ -176,6 +176,7 @@ def _board_source(args, work, env, truth_path):
     :raises RuntimeError: not a source checkout, or the toolchain is missing (one line).
     """
     from .device import _write_truth, add_arguments, VirtualSensor
+    from ..dataio.wire.units import MagConverter
     root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     harness_src = os.path.join(root, 'test', 'hil', 'mpu_board.c')
     firmware = os.path.join(root, 'firmware')
@@ -197,15 +198,22 @@ def _board_source(args, work, env, truth_path):
     total = args.poses + args.fresh
     dev = add_arguments(argparse.ArgumentParser()).parse_args(
         ['--poses', 'random', '--count', str(total), '--hold', str(args.hold), '--move',
-         str(args.move), '--rate', '1000', '--seed', str(args.seed)])
+         str(args.move), '--rate', '1000', '--seed', str(args.seed), '--gyro-errors',
+         '--magnetometer'])
     sensor = VirtualSensor(dev)
     _write_truth(truth_path, sensor.truth())
     n = int(total * (args.hold + args.move) * 1000) + 120_000     # script, then 2 min held
-    samples = os.path.join(work, 'registers.bin')
+    samples, fields = os.path.join(work, 'registers.bin'), os.path.join(work, 'ak8963.bin')
     sensor.counts(n, 0.0).astype('<i2').tofile(samples)
+    # The AK8963 measures every 10 ms: the field of every 10th row, in its own axes and
+    # counts (neutral factory adjustment, as the board is told with --asa).
+    to_counts = MagConverter((128, 128, 128)).to_counts
+    rows = [to_counts(row * 1e-6)[:3] if np.all(np.isfinite(row)) else (0, 0, 0)
+            for row in sensor.last_mag[::10]]
+    np.asarray(rows, '<i2').tofile(fields)
     return [board, '--elf', os.path.join(firmware, 'build', 'accel_calib_fw.elf'),
-            '--link', os.path.join(work, 'imu0'), '--samples', samples, '--seconds', '3600',
-            '--wait-open', '120']
+            '--link', os.path.join(work, 'imu0'), '--samples', samples, '--mag-samples',
+            fields, '--asa', '128,128,128', '--seconds', '3600', '--wait-open', '120']
 
 
 def run_ros_demo(args):
@@ -331,7 +339,7 @@ def _report_field(client, truth):
     keys = sorted(set(client.raw_mag) & set(client.corrected_mag))
     if not client.raw_mag:
         print('  magnetometer: imu/mag is absent (the driver publishes it from frame version '
-              "2's magnetometer block; this device sends version 1)")
+              "2's magnetometer block)")
         return
     if not keys or 'magnetometer' not in truth:
         print(f'  magnetometer: {len(client.raw_mag)} imu/mag samples but '

@@ -28,7 +28,9 @@
  * ST2 (HOFL, BITM; reading it ends the read cycle and clears DRDY), CNTL1 (mode, BIT),
  * CNTL2 (SRST) and the fuse ROM ASA values (readable in fuse ROM access mode only). In
  * continuous mode 2 it measures every 10 ms a field that wanders slowly (random walk), or
- * with --mag-hofl-every N an overflow (HOFL) every Nth measurement. Its measurements are
+ * with --mag-samples FILE the rows of FILE (hx hy hz, int16 in the AK8963's axes, one per
+ * 10 ms of the --samples script: the field of the pose held), and with
+ * --mag-hofl-every N an overflow (HOFL) every Nth measurement. Its measurements are
  * logged with --mag-log FILE ("index t_us hx hy hz st2"). --mag none removes it; the
  * MPU-6500/6050 (--who 0x70/0x68) have none.
  *
@@ -48,7 +50,7 @@
  *        [--wait-open S]   (start the board only once the pty is opened, S s at most)
  *        [--raw-twi]       (keep simavr 1.6's TWI quirks, to check the firmware copes)
  *        [--fault KIND:START_MS[:DURATION_MS]]... [--mag none] [--asa X,Y,Z]
- *        [--mag-log FILE] [--mag-hofl-every N]
+ *        [--mag-log FILE] [--mag-hofl-every N] [--mag-samples FILE]
  * On exit (after S simulated seconds, or SIGINT/SIGTERM) one JSON line on stdout reports
  * what the firmware configured and how much it sent, the faults and the SCL pulses.
  */
@@ -204,6 +206,8 @@ static uint8_t ak_asa[3] = {176, 177, 165};
 static int ak_ptr, ak_index_pending;
 static int16_t ak_field[3] = {120, -240, 310};   /* counts, about 18, -36, 46 uT */
 static uint64_t mag_samples;
+static int16_t *mag_script;                     /* --mag-samples: hx hy hz per 10 ms */
+static size_t mag_rows;
 static unsigned mag_hofl_every;
 static FILE *mag_log;
 
@@ -253,7 +257,10 @@ static avr_cycle_count_t ak_tick(avr_t *a, avr_cycle_count_t when, void *param)
     (void)param;
     if (ak_present && (ak_reg[0x0A] & 0x0F) == 0x06) {      /* continuous mode 2, 100 Hz */
         for (i = 0; i < 3; ++i) {
-            ak_field[i] = (int16_t)(ak_field[i] + (int)(xorshift() % 41) - 20);
+            if (mag_script)     /* the field of the pose the accelerometer script holds now */
+                ak_field[i] = mag_script[3 * ((samples_made / 10u) % mag_rows) + i];
+            else
+                ak_field[i] = (int16_t)(ak_field[i] + (int)(xorshift() % 41) - 20);
             h[i] = ak_field[i];
         }
         st2 = (ak_reg[0x0A] & 0x10) ? 0x10 : 0x00;           /* BITM follows CNTL1.BIT */
@@ -601,6 +608,21 @@ int main(int argc, char **argv)
             if (!(mag_log = fopen(v, "w"))) { perror(v); return 2; }
         }
         else if (!strcmp(a, "--mag-hofl-every")) mag_hofl_every = (unsigned)atoi(v);
+        else if (!strcmp(a, "--mag-samples")) {
+            FILE *f = fopen(v, "rb");
+            long size;
+            if (!f) { perror(v); return 2; }
+            fseek(f, 0, SEEK_END);
+            size = ftell(f);
+            rewind(f);
+            mag_rows = (size_t)size / 6u;
+            mag_script = malloc(mag_rows * 6u + 6u);
+            if (!mag_rows || fread(mag_script, 6, mag_rows, f) != mag_rows) {
+                fprintf(stderr, "mpu_board: %s: expected rows of 3 int16\n", v);
+                return 2;
+            }
+            fclose(f);
+        }
         else if (!strcmp(a, "--asa")) {
             unsigned x, y, z;
             if (sscanf(v, "%u,%u,%u", &x, &y, &z) != 3 || x > 255 || y > 255 || z > 255) {
