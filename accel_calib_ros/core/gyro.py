@@ -323,16 +323,20 @@ class _Moves:
             C (M, 3, 3) integrated rotations).
         """
         m, length = self.dt.shape
-        C = np.tile(np.eye(3), (m, 1, 1))
-        A = np.zeros((m, 3, 3, 3))      # d epsilon_a / d K_bc (body frame at the start)
-        B = np.zeros((m, 3, 3))         # sum_i C_{i+1} J_r,i dt_i (for the bias)
-        for i in range(length):
-            rate_dt = self.rate[:, i] * self.dt[:, i, None]
-            step, jac = _exp_and_jacobian(rate_dt @ K.T)
-            C = C @ step
-            CJ = C @ jac
-            A += CJ[:, :, :, None] * rate_dt[:, None, None, :]
-            B += CJ * self.dt[:, i, None, None]
+        rate_dt = self.rate * self.dt[..., None]                     # (M, L, 3)
+        step, jac = _exp_and_jacobian((rate_dt @ K.T).reshape(-1, 3))
+        step, jac = step.reshape(m, length, 3, 3), jac.reshape(m, length, 3, 3)
+        # Every partial product C_i = step_0 ... step_i at once: a prefix scan (log2 L
+        # batched products instead of L sequential ones; padding steps are identities).
+        prefix, span = step, 1
+        while span < length:
+            scanned = prefix.copy()
+            scanned[:, span:] = prefix[:, :-span] @ prefix[:, span:]
+            prefix, span = scanned, 2 * span
+        C = prefix[:, -1] if length else np.tile(np.eye(3), (m, 1, 1))
+        CJ = prefix @ jac
+        A = np.einsum('mlij,mlb->mijb', CJ, rate_dt)   # d epsilon_a / d K_bc (start frame)
+        B = np.einsum('mlij,ml->mij', CJ, self.dt)     # sum_i C_i J_r,i dt_i (for the bias)
         predicted = np.einsum('mji,mj->mi', C, self.g0)
         r = np.einsum('mki,mi->mk', self.basis, predicted)
         Q = np.einsum('mki,mij,mja->mka', self.basis, np.transpose(C, (0, 2, 1)),

@@ -201,10 +201,10 @@ def solve_magnetometer(samples, windows=None, accel=None, max_error=DEFAULT_MAX_
     :param field_uT: known field magnitude, µT, or None to fit it.
     :returns: SensorOutcome with the MagnetometerCalibration as ``result`` when fitted.
     """
-    from .magnetometer import fit_magnetometer
     if samples.mag is None or not samples.mag_rows.any():
         return absent('magnetometer', 'the data have no mx my mz' if samples.mag is None
                       else 'no row holds a magnetometer sample', 'uT')
+    from .magnetometer import fit_magnetometer
     out = SensorOutcome('magnetometer', 'insufficient', limit=max_error, unit='uT')
     try:
         m = fit_magnetometer(samples, windows, accel=accel, field_uT=field_uT)

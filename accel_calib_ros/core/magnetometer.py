@@ -47,9 +47,6 @@ crosses many cells. numpy/scipy only.
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.linalg import rq
-from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 
 from .accel.ml import fit_ml
 from .errors import CalibrationError, InputError
@@ -112,6 +109,7 @@ def visited_cells(directions, cells=COVERAGE_CELLS, min_samples=1):
     :returns: boolean (cells,): at least ``min_samples`` directions fall in the cell (the
         Voronoi cell of its lattice point).
     """
+    from scipy.spatial import cKDTree
     d = np.asarray(directions, float).reshape(-1, 3)
     norm = np.linalg.norm(d, axis=1)
     ok = np.isfinite(norm) & (norm > 0)
@@ -152,6 +150,7 @@ def canonical(T, R, field_uT, field_known=False):
     :raises InputError: ``T @ R`` is singular or a reflection (the axes are mapped
         wrongly).
     """
+    from scipy.linalg import rq
     A = np.asarray(T, float).reshape(3, 3) @ np.asarray(R, float).reshape(3, 3)
     if not np.linalg.det(A) > 0:
         raise InputError('soft iron x misalignment is singular or a reflection: check the '
@@ -252,6 +251,7 @@ def _dip_residuals(R, dip, up, v):
 
 def _refine(R, dip, up, v, max_iter=50):
     """Gauss-Newton on (R, dip); returns (R, dip, residuals, Jacobian, converged)."""
+    from scipy.spatial.transform import Rotation
     converged = False
     for _ in range(max_iter):
         r, J = _dip_residuals(R, dip, up, v)
@@ -309,6 +309,7 @@ def _field_error_matrix(T1, hard_iron, R, field_known, field_uT):
     corrected field ``F(T1) Rᵀ T1⁻¹ (raw - h)`` with ``raw = T1 R u + h`` (true) is
     affine in u, so its Jacobian is ``J0 + sum_j u_j D_j`` (central differences).
     """
+    from scipy.spatial.transform import Rotation
     p0 = np.concatenate([T1[UPPER], hard_iron, np.zeros(3)])
     A0 = T1 @ R
 

@@ -331,28 +331,32 @@ def _norm_residuals_fit(y, w, dt, gravity, start, iterations=30):
     T upper triangular, b the bias and k (3,) a linear temperature coefficient of the
     bias (``dt`` °C from the mean, zeros without temperatures): a model general enough
     for every window of a session that the outlier test can trust. Levenberg-Marquardt
-    with a finite-difference Jacobian (12 parameters).
+    with the analytic Jacobian (12 parameters): for a = T⁻¹ x, n = a/|a| and u = T⁻ᵀ n,
+    d|a|/dT_ij = -u_i a_j, d|a|/db = -u and d|a|/dk = -u dt.
     """
     rows, cols = np.triu_indices(3)
 
-    def residual(p):
+    def unpack(p):
         T = np.zeros((3, 3))
         T[rows, cols] = p[:6]
-        x = y - p[6:9] - np.outer(dt, p[9:12])
+        return T, y - p[6:9] - np.outer(dt, p[9:12])
+
+    def residual(p):
+        T, x = unpack(p)
         return np.linalg.norm(np.linalg.solve(T, x.T).T, axis=1) - gravity
+
+    def jacobian(p):
+        T, x = unpack(p)
+        a = np.linalg.solve(T, x.T).T
+        u = np.linalg.solve(T.T, (a / np.linalg.norm(a, axis=1, keepdims=True)).T).T
+        return -np.hstack([u[:, rows] * a[:, cols], u, u * dt[:, None]])
 
     p = np.r_[start[0][rows, cols], start[1], np.zeros(3)]
     use = slice(None) if np.any(dt != 0) else slice(0, 9)
     r = residual(p)
     cost, damping = float(np.sum(w * r ** 2)), 1e-3
     for _ in range(iterations):
-        h = 1e-6 * np.maximum(np.abs(p), 1e-3)
-        J = np.zeros((len(y), 12))
-        for k in range(12)[use]:
-            e = np.zeros(12)
-            e[k] = h[k]
-            J[:, k] = (residual(p + e) - residual(p - e)) / (2 * h[k])
-        J = J[:, use]
+        J = jacobian(p)[:, use]
         A = J.T @ (w[:, None] * J)
         g = J.T @ (w * r)
         try:
