@@ -13,6 +13,9 @@ from .effects import G0
 PROBE_P = 1e-3
 """A nonparametric probe is significant below this F-test p-value."""
 
+ABSORBED = 1e-3
+"""A probe direction left with less than this share of its size by the model is absorbed."""
+
 
 def _cosine_basis(values, degree):
     """
@@ -64,6 +67,9 @@ def residual_probes(model, fit, c):
     directions = a / np.linalg.norm(a, axis=1, keepdims=True)
     q = np.linalg.qr(fit.jac)[0] if fit.jac is not None and fit.jac.shape[1] else \
         np.zeros((n, 0))
+    # The model's own reading magnitude |y(a)|, not the measured one: the measured |y|
+    # carries each window's noise along gravity, which is the residual itself.
+    magnitude = np.linalg.norm(model.predict(fit.x, directions, c), axis=1)
     room = max(fit.dof - 3, 0)
     smooth_degree = int(min(6, room // 12))
     sphere_degree = 4 if room >= 40 else 3 if room >= 25 else 2 if room >= 12 else 0
@@ -79,18 +85,21 @@ def residual_probes(model, fit, c):
         'temperature': (c.temp, offset_and_scale(c.temp)),
         'direction': (directions, _sphere_basis(directions, sphere_degree)
                       if sphere_degree else np.zeros((n, 0))),
-        'magnitude': (np.linalg.norm(c.readings, axis=1),
-                      _cosine_basis(np.linalg.norm(c.readings, axis=1), 3)),
+        'magnitude': (magnitude, _cosine_basis(magnitude, 3)),
     }
     out = {}
     for name, (values, basis) in bases.items():
         if not basis.shape[1]:
             continue
         basis = basis / s[:, None]          # a smooth in m/s², seen in normalised units
+        scale = np.linalg.norm(basis, axis=0).max()
         if q.shape[1]:
             basis = basis - q @ (q.T @ basis)
         u, sv, _ = np.linalg.svd(basis, full_matrices=False)
-        u = u[:, sv > 1e-8 * max(sv.max(), 1e-300)]
+        # What the model absorbs is only absorbed to first order: the model's columns
+        # carry |a| = g + residual, so an absorbed direction leaves a sliver of relative
+        # size residual / g that follows the residual itself. Such slivers are not terms.
+        u = u[:, sv > ABSORBED * max(scale, 1e-300)]
         k = u.shape[1]
         if not k or fit.dof - k < 2:
             continue
