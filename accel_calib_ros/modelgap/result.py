@@ -3,11 +3,12 @@
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import optimize
+from scipy import optimize, stats
 
-from .effects import EFFECTS, G0
+from .effects import G0
 from .model import Conditions, Model
-from .noise import null_gap_limit, null_gap_p, NULL_QUANTILE, WindowNoise
+from .noise import (min_detectable_mg, null_gap_limit, null_gap_p, NULL_QUANTILE, POWER,
+                    WindowNoise)
 
 MIN_EFFECT_MG = 1.0
 """Smallest practical threshold, mg: an effect smaller than this is never named."""
@@ -15,6 +16,10 @@ MIN_EFFECT_MG = 1.0
 
 NEGLIGIBLE_FACTOR = 3.0
 """The rest is negligible when this many times its per-window scatter is below the threshold."""
+
+
+def _dof_text(dof):
+    return 'known' if dof is None else f'{dof:.3g} degrees of freedom'
 
 
 @dataclass
@@ -39,6 +44,11 @@ class DiagnoseResult:
     probes: dict = field(default_factory=dict)
     dropped_windows: int = 0
     partial: list = field(default_factory=list)
+    vetoed: list = field(default_factory=list)       # supported, but against the evidence
+    unconfirmed: list = field(default_factory=list)  # gn effects the ml baseline does not find
+    ml_check: dict = None                            # gn: what the ml baseline search found
+    still: dict = None                               # the drift the still windows show
+    _power_memo: dict = field(default_factory=dict, repr=False)
 
     @property
     def missing_effects(self):
@@ -102,20 +112,125 @@ class DiagnoseResult:
         return NEGLIGIBLE_FACTOR * 1000.0 * self.excess_scatter() / G0 < self.threshold_mg
 
     @property
+    def smooth_trend(self):
+        """Tell whether a probe finds a smooth trend in the final residual."""
+        return any(p['significant'] for p in self.probes.values())
+
+    @property
+    def slow_noise(self):
+        """
+        Tell whether the window means scatter as noise slower than a window would.
+
+        The gap is beyond the within-window noise, no probe finds a smooth trend in time,
+        temperature, direction or magnitude, and the noise inside the windows is itself
+        correlated (``WindowNoise.coloured``): the scatter of the window means is noise
+        at the scale of a window (flicker, AR noise, bias instability), which the
+        within-window spectrum cannot reach. The null and the power then use the scatter
+        between windows.
+        """
+        return bool(not self.statistically_explained and self.window_noise is not None
+                    and self.window_noise.coloured and not self.smooth_trend)
+
+    @property
+    def scatter_below_noise(self):
+        """Tell whether the windows scatter significantly less than the noise level says."""
+        fit = self.fits[-1]
+        if fit.dof < 1:
+            return False
+        x = self.gap_after ** 2
+        nu = self.noise_dof
+        p = (stats.chi2.cdf(x * fit.dof, fit.dof) if not np.isfinite(nu)
+             else stats.f.cdf(x, fit.dof, max(nu, 1e-3)))
+        return bool(p < 1e-3)
+
+    @property
+    def noise_source(self):
+        """
+        Return which scatter the null and the power use: 'within windows' or 'between windows'.
+
+        Between windows (the final model's own residual scatter, with its dof) when the
+        window means scatter as slow noise (``slow_noise``) or significantly less than
+        the within-window noise says (a vibration skirt in the lowest bins): what the
+        window means show is then the better measure.
+        """
+        return ('between windows' if self.slow_noise or self.scatter_below_noise
+                else 'within windows')
+
+    def power(self):
+        """
+        Return the test's power, JSON-ready: the smallest error it could have detected.
+
+        ``min_detectable_mg``: the smallest systematic error per window, mg, that makes
+        the gap exceed its null limit with probability ``probability`` (see
+        ``noise.min_detectable_mg``), with the noise level from ``noise_source``
+        (within windows: its measured degrees of freedom; between windows: the model's
+        dof); ``min_detectable_mg_known_noise``: the same with the level known exactly,
+        so the difference is what the noise level's own uncertainty costs. None when no
+        error size would be detected.
+        """
+        fit = self.fits[-1]
+        key = (id(fit), self.gap_after, self.noise_dof, self.noise_source)
+        if key not in self._power_memo:
+            model = Model(self.baseline, fit.effects)
+            _, s = model.residual_parts(fit.x, self.conditions)
+            between = self.noise_source == 'between windows'
+            scale = self.gap_after ** 2 if between else 1.0
+            nu = float(fit.dof) if between else self.noise_dof
+            inv = float(np.sum(1.0 / (s ** 2 * scale)))
+            n = len(s)
+            mde = min_detectable_mg(fit.dof, nu, inv, n)
+            known = min_detectable_mg(fit.dof, float('inf'), inv, n)
+            self._power_memo.clear()
+            self._power_memo[key] = {
+                'min_detectable_mg': mde if np.isfinite(mde) else None,
+                'min_detectable_mg_known_noise': known if np.isfinite(known) else None,
+                'probability': POWER, 'quantile': NULL_QUANTILE,
+                'noise_source': self.noise_source,
+                'noise_dof': nu if np.isfinite(nu) else None}
+        return dict(self._power_memo[key])
+
+    @property
+    def cannot_tell(self):
+        """
+        Tell whether the test accepts the gap without the power to see a practical error.
+
+        The gap is within its null limit (or what is left is slow noise), but the smallest
+        error the test detects (``power``) exceeds the practical threshold: "explained by
+        noise" would be vacuous (a noise level measured with a few degrees of freedom
+        accepts any gap; slow noise of a few mg hides an error of a few mg).
+        """
+        if not (self.statistically_explained or self.slow_noise):
+            return False
+        mde = self.power()['min_detectable_mg']
+        return mde is None or mde > self.threshold_mg
+
+    @property
+    def outcome(self):
+        """Return the kind of verdict: explained, cannot tell, negligible, slow noise, ..."""
+        if self.statistically_explained:
+            return 'cannot tell' if self.cannot_tell else 'explained'
+        if self.negligible:
+            return 'negligible'
+        if self.slow_noise:
+            return 'cannot tell' if self.cannot_tell else 'slow noise'
+        return 'not explained'
+
+    @property
     def explained(self):
         """
         Tell whether nothing is left to find.
 
-        True when the final gap is within the noise, or when ``NEGLIGIBLE_FACTOR`` times
-        the scatter left beyond the noise is below the practical threshold (detectable,
-        irrelevant).
+        True when the final gap is within the noise (and the test had the power to see a
+        practical error), when ``NEGLIGIBLE_FACTOR`` times the scatter left beyond the
+        noise is below the practical threshold (detectable, irrelevant), or when what is
+        left is an unstructured scatter of noise slower than a window (``slow_noise``).
         """
-        return self.statistically_explained or self.negligible
+        return self.outcome in ('explained', 'negligible', 'slow noise')
 
     @property
     def outside_library(self):
         """Tell whether a disagreement that matters is left that no library effect explains."""
-        return not self.explained
+        return self.outcome == 'not explained'
 
     def parameters(self):
         """
@@ -128,7 +243,7 @@ class DiagnoseResult:
         T, bias, params = model.split(self.fits[-1].x)
         out = {'T': T.tolist(), 'bias': bias.tolist(), 'effects': {}}
         for name, values in params.items():
-            effect = EFFECTS[name]
+            effect = model.objects[name]
             out['effects'][name] = {
                 'values': values.tolist(), 'names': list(effect.param_names),
                 'unit': effect.unit,
@@ -147,8 +262,8 @@ class DiagnoseResult:
             out['sample_std'] = np.asarray(self.noise_std, float).tolist()
             if self.rate_hz:
                 T = np.diag(Model(self.baseline, []).split(self.fits[0].x)[0])
-                inflation = (self.window_noise.inflation if self.window_noise is not None
-                             else np.ones(3))
+                inflation = (self.window_noise.inflation / self.window_noise.taper
+                             if self.window_noise is not None else np.ones(3))
                 density = (np.asarray(self.noise_std) * np.sqrt(inflation) / np.abs(T)
                            / np.sqrt(self.rate_hz / 2.0))
                 out['density_ug_per_sqrt_hz'] = (density / G0 * 1e6).tolist()
@@ -156,19 +271,35 @@ class DiagnoseResult:
 
     def verdict(self):
         """Return the one-line verdict on what is left after the named effects."""
-        if self.statistically_explained:
+        kind = self.outcome
+        if kind == 'explained':
             return 'explained by noise'
-        if self.negligible:
+        if kind == 'cannot tell':
+            power = self.power()
+            mde, known = power['min_detectable_mg'], power['min_detectable_mg_known_noise']
+            size = 'any' if mde is None else f'{mde:.2g} mg'
+            cause = ('noise too uncertain' if known is not None and known <= self.threshold_mg
+                     else 'noise too large')
+            return (f'cannot tell: {cause} (noise level from {power["noise_source"]}, '
+                    f'{_dof_text(power["noise_dof"])}); only an error of {size} per window '
+                    f'would be detected, above the practical threshold '
+                    f'({self.threshold_mg:.2g} mg)')
+        if kind == 'negligible':
             return (f'beyond the noise, but the rest ({1000 * self.excess_scatter() / G0:.2g} '
                     f'mg per window) is below the practical threshold '
                     f'({self.threshold_mg:.2g} mg)')
+        if kind == 'slow noise':
+            return (f'explained by noise slower than a window: the window means scatter '
+                    f'{self.gap_after:.2g} times the noise inside them, with no smooth trend '
+                    'in time, temperature, direction or magnitude, and that noise is '
+                    'correlated (flicker, bias instability)')
         return ('NOT explained by noise: no effect in the library brings the gap into the '
                 'noise band; the cause may lie outside the effect library')
 
     def summary(self):
         """Return the JSON-ready machine summary of spec section 3 (plus extras)."""
         null = {'method': 'analytic F(dof, noise dof)', 'quantile': NULL_QUANTILE,
-                'dof': self.fits[-1].dof,
+                'dof': self.fits[-1].dof, 'noise_source': self.noise_source,
                 'noise_dof': self.noise_dof if np.isfinite(self.noise_dof) else None,
                 'limit': self.null_limit, 'p_value': self.null_p,
                 'replicates': len(self.null_gaps),
@@ -188,7 +319,8 @@ class DiagnoseResult:
             'partial': self.partial,
             'probes': {k: {kk: vv for kk, vv in v.items() if not kk.startswith('_')}
                        for k, v in self.probes.items()},
-            'null': null, 'null_gap_limit': self.null_limit,
+            'null': null, 'null_gap_limit': self.null_limit, 'power': self.power(),
+            'cannot_tell': bool(self.outcome == 'cannot tell'),
             'noise_inflation': self.noise_inflation, 'noise': self.noise(),
             'excess_scatter_m_s2': self.excess_scatter(),
             'parameters': self.parameters(),
@@ -225,7 +357,13 @@ class DiagnoseResult:
             lines.append(f'not testable here: {name} ({reason})')
         lines.append(f'final gap {self.gap_after:.2f} (noise limit {self.null_limit:.2f}, '
                      f'p = {self.null_p:.2g}): {self.verdict()}')
-        if not self.statistically_explained:
+        power = self.power()
+        if power['min_detectable_mg'] is not None:
+            lines.append(f'power: a systematic error of {power["min_detectable_mg"]:.2g} mg per '
+                         f'window would be detected with {100 * power["probability"]:.0f} % '
+                         f'probability (noise level from {power["noise_source"]}, '
+                         f'{_dof_text(power["noise_dof"])})')
+        if self.outcome in ('negligible', 'not explained'):
             lines.append(f'the rest is a scatter of {self.excess_scatter():.2g} m/s² per window')
             found = [(name, p) for name, p in self.probes.items() if p['significant']]
             if found:

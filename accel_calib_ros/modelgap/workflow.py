@@ -28,12 +28,12 @@ windows (the calibration node), ``held_out_check`` cross-validates the finding.
 import numpy as np
 from scipy import stats
 
-from .effects import EFFECTS
+from .effects import EFFECTS, G0
 from .evidence import (column_correlation, effect_worst_case_mg, predicted_accuracy_mg,
                        separation_advice, strongest_correlations, visibility)
 from .model import conditions_from_windows, fit_model, min_windows, Model, model_start
-from .noise import simulated_null_gaps, window_noise, WindowNoise
-from .probes import residual_probes
+from .noise import RAMP_TEMP_C, simulated_null_gaps, window_noise, WindowNoise
+from .probes import added_on_top, delta_bic, FAMILY, residual_probes
 from .result import DiagnoseResult, MIN_EFFECT_MG
 from ..core.accel.calibration import calibrate
 from ..core.errors import CalibrationError
@@ -49,9 +49,13 @@ MIN_VISIBILITY = 0.01
 COLLINEAR = 0.9
 """Supported runner-up whose signature correlates more than this with the winner's is a rival."""
 
+RIVAL_BIC = 10.0
+"""A rival's ΔBIC is within this of the winner's (beyond it, the evidence is very strong)."""
+
 
 def diagnose_windows(windows, baseline='ml', gravity=9.80665, rate_hz=None, rng=None,
-                     replicates=0, inflation=1.0, max_steps=4, noise=None, min_effect_mg=None):
+                     replicates=0, inflation=1.0, max_steps=4, noise=None, min_effect_mg=None,
+                     still=None, confirm=True):
     """
     Run the model-gap workflow on static windows (also used by the calibration node).
 
@@ -69,6 +73,10 @@ def diagnose_windows(windows, baseline='ml', gravity=9.80665, rate_hz=None, rng=
     :param min_effect_mg: practical threshold, mg: an effect is named only when its
         worst-case error in corrected acceleration exceeds it (default: the baseline
         fit's predicted accuracy, at least ``MIN_EFFECT_MG``).
+    :param still: the drift the still windows show (``still_drift``), or None.
+    :param confirm: with baseline 'gn', name only effects the ``ml`` baseline also finds
+        (or nonorthogonality, the term gn lacks, when the ml fit's cross-axis terms are
+        significant beside them); see ``_confirm_with_ml``.
     :returns: DiagnoseResult.
     :raises CalibrationError: too few windows, or the baseline cannot be fitted.
     """
@@ -83,6 +91,29 @@ def diagnose_windows(windows, baseline='ml', gravity=9.80665, rate_hz=None, rng=
     if noise is None:
         noise = WindowNoise(np.broadcast_to(np.asarray(inflation, float), (3,)).copy(),
                             np.zeros(3), ['given'] * 3)
+    search = {'gravity': gravity, 'rate_hz': rate_hz, 'noise': noise,
+              'min_effect_mg': min_effect_mg, 'max_steps': max_steps, 'still': still}
+    result = _search(windows, baseline, **search)
+    if baseline == 'gn' and confirm:
+        result = _confirm_with_ml(result, windows, search)
+    model = Model(baseline, result.fits[-1].effects)
+    fit = result.fits[-1]
+    result.null_gaps = (simulated_null_gaps(model, fit, result.conditions, rng, replicates)
+                        if replicates else [])
+    return result
+
+
+def _search(windows, baseline, gravity, rate_hz, noise, min_effect_mg, max_steps, still,
+            allowed=None):
+    """
+    Search the library for the effects the session supports, one step at a time.
+
+    Each round fits every candidate (``_try``), ranks the significant and large enough
+    ones by ΔBIC, and names the first that agrees with all the evidence
+    (``_disagreement``): the probes as alternatives, and the still windows for a drift.
+
+    :param allowed: names that may be named (all when None).
+    """
     c = conditions_from_windows(windows, gravity, noise.inflation)
     start_cal = calibrate(c.readings, gravity, baseline, windows.count.astype(float))
     model, fit = fit_model(baseline, [], c, model_start(baseline, start_cal))
@@ -95,10 +126,13 @@ def diagnose_windows(windows, baseline='ml', gravity=9.80665, rate_hz=None, rng=
     skipped = {}
     candidates = []
     for name, effect in EFFECTS.items():
+        if allowed is not None and name not in allowed:
+            continue
         reason = effect.applicable(context, baseline)
-        if not reason and fit.dof - len(effect.param_names) < 2:
+        bound = effect.bind(c) if not reason else None
+        if not reason and fit.dof - len(bound.param_names) - bound.searched < 2:
             reason = f'{len(windows)} windows leave too few degrees of freedom'
-        if not reason and visibility(model, fit, c, name) < MIN_VISIBILITY:
+        if not reason and visibility(model, fit, c, bound) < MIN_VISIBILITY:
             reason = ('these poses cannot show it; turn each axis up, down and sideways, '
                       'not only the six faces')
         if reason:
@@ -109,28 +143,9 @@ def diagnose_windows(windows, baseline='ml', gravity=9.80665, rate_hz=None, rng=
                             window_noise=noise, noise_std=windows.noise_std,
                             rate_hz=rate_hz, threshold_mg=threshold,
                             predicted_accuracy_mg=accuracy)
-    n = len(c.readings)
+    result.still = still
     while candidates and len(result.steps) < max_steps:
-        tried = []
-        for name in candidates:
-            k = len(EFFECTS[name].param_names)
-            if fit.dof - k < 2:
-                continue
-            start = np.concatenate([fit.x, np.zeros(k)])
-            try:
-                new_model, new_fit = fit_model(baseline, fit.effects + [name], c, start)
-            except (ValueError, np.linalg.LinAlgError):
-                continue
-            drop = fit.chi2 - new_fit.chi2
-            F = (drop / k) / max(new_fit.chi2 / new_fit.dof, 1e-300)
-            p = float(stats.f.sf(F, k, new_fit.dof))
-            bic = drop - k * np.log(n)
-            params = new_model.split(new_fit.x)[2][name]
-            worst = effect_worst_case_mg(new_model, new_fit.x, c, name, params)
-            tried.append({'effect': name, 'drop': drop, 'model': new_model, 'fit': new_fit,
-                          'F': float(F), 'p': p, 'bic': float(bic), 'worst_case_mg': worst,
-                          'significant': bool(p < P_SUPPORT and bic > 0),
-                          'large_enough': bool(worst > threshold)})
+        tried = [t for t in (_try(name, model, fit, c, threshold) for name in candidates) if t]
         result.candidates = [{key: t[key] for key in ('effect', 'F', 'p', 'worst_case_mg',
                                                       'significant', 'large_enough')}
                              | {'delta_chi2': float(t['drop']), 'delta_bic': t['bic']}
@@ -138,52 +153,415 @@ def diagnose_windows(windows, baseline='ml', gravity=9.80665, rate_hz=None, rng=
         result.below_threshold = [cand for cand in result.candidates
                                   if cand['significant'] and not cand['large_enough']]
         supported = sorted((t for t in tried if t['significant'] and t['large_enough']),
-                           key=lambda t: -t['drop'])
+                           key=lambda t: -t['bic'])
         if not supported:
             break
         # A tie (the columns are collinear in this session) goes to the effect with a
         # measured cause: temperature is recorded, a drift with time is the catch-all.
-        tied = [t for t in supported if t['drop'] >= (1 - 1e-3) * supported[0]['drop']]
-        tied.sort(key=lambda t: t['effect'] == 'bias_drift')
+        tied = [t for t in supported if t['bic'] >= supported[0]['bic']
+                - 1e-3 * abs(supported[0]['drop'])]
+        tied.sort(key=lambda t: EFFECTS[t['effect']].variable == 'time')
         supported.remove(tied[0])
         supported.insert(0, tied[0])
-        best = supported[0]
-        name, new_model, new_fit, drop = best['effect'], best['model'], best['fit'], best['drop']
-        a = model.true_accel(fit.x, c)
-        directions = a / np.linalg.norm(a, axis=1, keepdims=True)
-        T_new, _, all_params = new_model.split(new_fit.x)
-        params = all_params[name]
-        result.steps.append({
-            'effect': name, 'gap_before': fit.gap, 'gap_after': new_fit.gap,
-            'evidence': {'F': best['F'], 'p': best['p'], 'delta_chi2': float(drop),
-                         'delta_bic': best['bic'], 'params': params.tolist(),
-                         'param_names': list(EFFECTS[name].param_names),
-                         'unit': EFFECTS[name].unit,
-                         'magnitude': EFFECTS[name].magnitude(params, gravity,
-                                                              np.diag(T_new)),
-                         'worst_case_mg': best['worst_case_mg'],
-                         'description': EFFECTS[name].description},
-            'where': strongest_correlations(fit.residuals, c, directions)})
-        for rival in supported[1:]:
-            # A rival only when the two are confounded in this session's design: their
-            # signatures (Jacobian columns) correlate.
-            alike = column_correlation(model, fit, c, name, rival['effect'])
-            if alike > COLLINEAR:
-                result.ambiguities.append(
-                    f'{name} and {rival["effect"]} are confounded in this session (their '
-                    f'signatures correlate {alike:.2f}; chi² drops {drop:.1f} and '
-                    f'{rival["drop"]:.1f}): '
-                    + separation_advice(name, rival['effect'], c))
-        model, fit = new_model, new_fit
+        alternatives = residual_probes(model, fit, c)
+        best = None
+        for cand in supported:
+            reason = (_disagreement(cand, alternatives, model, fit, c, still)
+                      or _lag_against_pair(cand, tried, model, fit, c))
+            if not reason:
+                best = cand
+                break
+            result.vetoed.append({'effect': cand['effect'], 'reason': reason,
+                                  'worst_case_mg': cand['worst_case_mg'], 'F': cand['F'],
+                                  'p': cand['p'], 'step': len(result.steps) + 1})
+            candidates.remove(cand['effect'])
+        if best is None:
+            break
+        best = _refine(best, model, fit, c, threshold)
+        _name_step(result, best, model, fit, c, supported)
+        model, fit = best['model'], best['fit']
         result.fits.append(fit)
-        candidates.remove(name)
+        candidates.remove(best['effect'])
     if fit.jac is not None:
         result.probes = residual_probes(model, fit, c)
         _demote_partial(result, c)
-    model = Model(baseline, result.fits[-1].effects)
-    fit = result.fits[-1]
-    result.null_gaps = simulated_null_gaps(model, fit, c, rng, replicates) if replicates else []
     return result
+
+
+def _try(name, model, fit, c, threshold, bound=None):
+    """
+    Fit the current model plus effect ``name``; return its evidence, or None.
+
+    An effect with a searched parameter (the time constant of ``temperature_lag``) is
+    bound to the session with the value that best explains the current residuals
+    (linearised, ``Effect.search``), and that parameter counts in the F-test and the BIC.
+    """
+    n = len(c.readings)
+    effect = EFFECTS[name]
+    r = fit.residuals
+    q = np.linalg.qr(fit.jac)[0] if fit.jac is not None and fit.jac.shape[1] else None
+
+    def explained(bound):
+        j = model.effect_jacobian(fit.x, c, bound)
+        if q is not None:
+            j = j - q @ (q.T @ j)
+        u, sv, _ = np.linalg.svd(j, full_matrices=False)
+        u = u[:, sv > 1e-9 * max(sv.max(), 1e-300)]
+        return float(np.sum((u.T @ r) ** 2))
+
+    bound = effect.search(c, explained) if bound is None else bound
+    k = len(bound.param_names) + bound.searched
+    if fit.dof - k < 2:
+        return None
+    start = np.concatenate([fit.x, np.zeros(len(bound.param_names))])
+    try:
+        new_model, new_fit = fit_model(model.baseline, fit.effects + [bound], c, start)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    new_fit.dof -= bound.searched
+    drop = fit.chi2 - new_fit.chi2
+    F = (drop / k) / max(new_fit.chi2 / new_fit.dof, 1e-300)
+    p = float(stats.f.sf(F, k, new_fit.dof))
+    bic = delta_bic(fit.chi2, drop, k, n)
+    params = new_model.split(new_fit.x)[2][name]
+    worst = effect_worst_case_mg(new_model, new_fit.x, c, name, params)
+    return {'effect': name, 'bound': bound, 'drop': drop, 'model': new_model, 'fit': new_fit,
+            'F': float(F), 'p': p, 'bic': float(bic), 'worst_case_mg': worst, 'k': k,
+            'significant': bool(p < P_SUPPORT and bic > 0),
+            'large_enough': bool(worst > threshold)}
+
+
+def _refine(best, model, fit, c, threshold):
+    """
+    Refine a searched parameter (a time constant) of the effect about to be named.
+
+    The search picked it on the linearised residuals; here the full model is refitted
+    over a narrow bracket (a factor 1.5 either way, in log) and the best fit is kept.
+    """
+    bound = best['bound']
+    if not bound.searched or not hasattr(bound, 'tau'):
+        return best
+    from scipy import optimize
+    effect = EFFECTS[best['effect']]
+    start = np.concatenate([fit.x, np.zeros(len(bound.param_names))])
+
+    def chi2(log_tau):
+        try:
+            return fit_model(model.baseline, fit.effects + [effect.bind(c, np.exp(log_tau))],
+                             c, start)[1].chi2
+        except (ValueError, np.linalg.LinAlgError):
+            return np.inf
+
+    centre = np.log(bound.tau)
+    found = optimize.minimize_scalar(chi2, bounds=(centre - 0.4, centre + 0.4),
+                                     method='bounded', options={'xatol': 0.01})
+    if not found.fun < best['fit'].chi2:
+        return best
+    refined = _try(best['effect'], model, fit, c, threshold,
+                   bound=effect.bind(c, np.exp(found.x)))
+    return refined if refined and refined['significant'] and refined['large_enough'] else best
+
+
+def _name_step(result, best, model, fit, c, supported):
+    """Record a named effect as a step, with the rivals it is confounded with."""
+    name, new_model, new_fit, drop = best['effect'], best['model'], best['fit'], best['drop']
+    a = model.true_accel(fit.x, c)
+    directions = a / np.linalg.norm(a, axis=1, keepdims=True)
+    T_new, _, all_params = new_model.split(new_fit.x)
+    params = all_params[name]
+    effect = best['bound']
+    evidence = {'F': best['F'], 'p': best['p'], 'delta_chi2': float(drop),
+                'delta_bic': best['bic'], 'params': params.tolist(),
+                'param_names': list(effect.param_names), 'unit': effect.unit,
+                'magnitude': effect.magnitude(params, c.gravity, np.diag(T_new)),
+                'worst_case_mg': best['worst_case_mg'], 'description': effect.description}
+    if getattr(effect, 'tau', None) is not None:
+        evidence['tau_s'] = float(effect.tau)
+    result.steps.append({'effect': name, 'gap_before': fit.gap, 'gap_after': new_fit.gap,
+                         'evidence': evidence,
+                         'where': strongest_correlations(fit.residuals, c, directions)})
+    for rival in supported[1:]:
+        # A rival only when the two are confounded in this session's design (their
+        # signatures, the Jacobian columns, correlate) and about as well supported: a
+        # rival with many more terms that only contains the winner's signature is not one.
+        if rival['effect'] == name or rival['bic'] < best['bic'] - RIVAL_BIC:
+            continue
+        alike = column_correlation(model, fit, c, effect, rival['bound'])
+        if alike > COLLINEAR:
+            result.ambiguities.append(
+                f'{name} and {rival["effect"]} are confounded in this session (their '
+                f'signatures correlate {alike:.2f}; chi² drops {drop:.1f} and '
+                f'{rival["drop"]:.1f}): ' + separation_advice(name, rival['effect'], c))
+
+
+def _disagreement(cand, alternatives, model, fit, c, still):
+    """
+    Return why a supported candidate disagrees with the rest of the evidence, or ''.
+
+    - A probe of another variable (``probes.FAMILY``) that explains the current
+      disagreement better (larger ΔBIC), stays significant after the candidate is added,
+      and leaves the candidate nothing to add on top of it (``added_on_top``), while the
+      candidate's fitted signal lies mostly outside the probe's span (more than
+      ``COLLINEAR`` of it inside means the two are confounded in this session, e.g. a
+      temperature that is a smooth function of time, and the probe cannot judge): the
+      candidate is only a projection of a dependence on that variable.
+    - A time effect against the still windows (``still_drift``): a drift that the still
+      data contradict, or a single jump in time (a mount shifting) that explains the
+      disagreement better than a drift or a wander does.
+    """
+    name = cand['effect']
+    family = FAMILY.get(EFFECTS[name].variable, EFFECTS[name].variable)
+    q = np.linalg.qr(fit.jac)[0] if fit.jac is not None and fit.jac.shape[1] else None
+    j = model.effect_jacobian(fit.x, c, cand['bound'])
+    if q is not None:
+        j = j - q @ (q.T @ j)
+    # The candidate's fitted signal in the current residual space (linearised).
+    signal = j @ np.linalg.lstsq(j, fit.residuals, rcond=None)[0]
+    after = None
+    for probe, alt in alternatives.items():
+        if FAMILY[probe] == family or not alt['significant'] or alt['delta_bic'] <= cand['bic']:
+            continue
+        u = alt['_basis']
+        inside = float(np.sum((u.T @ signal) ** 2) / max(signal @ signal, 1e-300))
+        if inside > COLLINEAR:
+            continue        # confounded here (temperature smooth in time): no verdict
+        if after is None:
+            after = residual_probes(cand['model'], cand['fit'], c)
+        if not after.get(probe, {}).get('significant'):
+            continue
+        on_top = added_on_top(fit.residuals, fit.chi2, fit.dof, u, j)
+        if on_top >= P_SUPPORT:
+            return (f'the {probe} probe explains the disagreement better (ΔBIC '
+                    f'{alt["delta_bic"]:.0f} against {cand["bic"]:.0f}), stays significant '
+                    f'after {name} (p = {after[probe]["p"]:.1e}), and {name} adds nothing '
+                    f'beside it (p = {on_top:.2g})')
+    if family != 'time':
+        return ''
+    if name == 'bias_drift' and still is not None:
+        reason = _still_contradicts(cand, still)
+        if reason:
+            return reason
+    step = _best_step(model, fit, c)
+    if step and step['delta_bic'] > cand['bic']:
+        on_top = added_on_top(fit.residuals, fit.chi2, fit.dof, step['basis'], j)
+        if on_top >= P_SUPPORT:
+            return (f'a single jump in time at t = {step["time"]:+.0f} s (about '
+                    f'{step["size_mg"]:.2g} mg RMS; the mount shifting?) explains the '
+                    'disagreement '
+                    f'better (ΔBIC {step["delta_bic"]:.0f} against {cand["bic"]:.0f}) than '
+                    f'{name}, which adds nothing beside it (p = {on_top:.2g})')
+    return ''
+
+
+def _lag_against_pair(cand, tried, model, fit, c):
+    """
+    Return why a lagged temperature is not needed, or ''.
+
+    A lag shows as the offset following temperature and its rate of change; an offset
+    that follows the temperature plus a drift in time can look much the same. The lag is
+    named only when it explains the disagreement better (ΔBIC) than ``temperature_bias``
+    and ``bias_drift`` together, its two-term confounder.
+    """
+    if cand['effect'] != 'temperature_lag':
+        return ''
+    names = [t['effect'] for t in tried]
+    if 'temperature_bias' not in names or 'bias_drift' not in names:
+        return ''
+    pair = [EFFECTS['temperature_bias'].bind(c), EFFECTS['bias_drift'].bind(c)]
+    start = np.concatenate([fit.x, np.zeros(6)])
+    try:
+        _, both = fit_model(model.baseline, fit.effects + pair, c, start)
+    except (ValueError, np.linalg.LinAlgError):
+        return ''
+    bic = delta_bic(fit.chi2, fit.chi2 - both.chi2, 6, len(c.readings))
+    if bic < cand['bic']:
+        return ''
+    return (f'an offset following the temperature plus a drift in time explains the '
+            f'disagreement as well (ΔBIC {bic:.0f} against {cand["bic"]:.0f} for a lag of '
+            f'tau = {cand["bound"].tau:.3g} s)')
+
+
+def _best_step(model, fit, c):
+    """
+    Return the best single jump in time of the offset, as an alternative to a time effect.
+
+    Offsets that jump once, n . h for windows after a time t_j, scanned over the gaps
+    between windows (linearised, after the model's Jacobian is projected out); the jump
+    time counts as one more parameter in the BIC.
+
+    :returns: dict with 'delta_chi2', 'delta_bic', 'time', 'size_mg', 'basis' (N, 3), or
+        None when the session has too few windows.
+    """
+    order = np.argsort(c.time, kind='stable')
+    n = len(c.time)
+    if n < 12 or fit.jac is None:
+        return None
+    rho, s = model.residual_parts(fit.x, c)
+    a = model.true_accel(fit.x, c)
+    directions = a / np.linalg.norm(a, axis=1, keepdims=True)
+    q = np.linalg.qr(fit.jac)[0]
+    r = rho / s
+    best = None
+    for cut in range(3, n - 2):
+        after = np.zeros(n)
+        after[order[cut:]] = 1.0
+        cols = after[:, None] * directions / s[:, None]
+        cols = cols - q @ (q.T @ cols)
+        u, sv, _ = np.linalg.svd(cols, full_matrices=False)
+        u = u[:, sv > 1e-6 * max(sv.max(), 1e-300)]
+        drop = float(np.sum((u.T @ r) ** 2))
+        if best is None or drop > best['delta_chi2']:
+            smooth = (u @ (u.T @ r)) * s
+            best = {'delta_chi2': drop, 'basis': u,
+                    'time': float(0.5 * (c.time[order[cut - 1]] + c.time[order[cut]])),
+                    'size_mg': float(1000.0 * np.sqrt(np.mean(smooth ** 2)) / G0)}
+    best['delta_bic'] = delta_bic(fit.chi2, best['delta_chi2'], best['basis'].shape[1] + 1, n)
+    return best
+
+
+def _still_contradicts(cand, still):
+    """
+    Return why the still windows contradict a fitted linear drift, or ''.
+
+    The drift the still windows show (``still_drift``: the slope of the readings inside
+    windows whose temperature held steady) against the fitted one, each with its
+    covariance: chi² with 3 degrees of freedom, contradicted below ``P_SUPPORT``.
+    """
+    fit = cand['fit']
+    model = cand['model']
+    params = model.split(fit.x)[2][cand['effect']]
+    k = len(params)
+    jac = fit.jac
+    cov = np.linalg.pinv(jac.T @ jac)[-k:, -k:] * max(fit.gap ** 2, 1.0)
+    delta = params - still['slope']
+    total = cov + np.diag(np.asarray(still['se']) ** 2)
+    chi2 = float(delta @ np.linalg.solve(total, delta))
+    p = float(stats.chi2.sf(chi2, k))
+    if p >= P_SUPPORT:
+        return ''
+    per_min = 60000.0 / G0
+    return ('contradicted by the still windows: over '
+            f'{still["seconds"]:.0f} s of still data (longest {still["longest_s"]:.0f} s) the '
+            'offset drifts ' + ', '.join(
+                f'{axis} {per_min * v:+.3g} ± {per_min * e:.2g}'
+                for axis, v, e in zip('xyz', still['slope'], still['se']))
+            + ' mg/min, not ' + ', '.join(f'{axis} {per_min * v:+.3g}'
+                                          for axis, v in zip('xyz', params))
+            + f' (p = {p:.1e})')
+
+
+def still_drift(samples, windows, noise=None):
+    """
+    Return the drift of the offset that the still windows themselves show, or None.
+
+    Inside a window the pose is fixed, so with a steady temperature (moved less than
+    ``RAMP_TEMP_C``, or not recorded) the readings change only by a drift: the least-squares
+    slope of each window's samples against time, with variance R sigma² / sum (t - t̄)²
+    (R the noise's low-frequency factor, ``window_noise``), pooled over windows by their
+    inverse variances. A long still segment (a warm-up, an initial rest) dominates.
+
+    :returns: dict 'slope' (3,) reading units per s, 'se' (3,), 'seconds' of still data
+        used, 'longest_s'; None without a window of at least 8 samples.
+    """
+    ratio = (noise.inflation / noise.taper) if noise is not None else np.ones(3)
+    ratio = np.maximum(ratio, 1.0)
+    num, den, seconds, longest = np.zeros(3), np.zeros(3), 0.0, 0.0
+    for a, b in zip(windows.start, windows.stop):
+        if b - a < 8:
+            continue
+        if samples.temp is not None and np.ptp(samples.temp[a:b]) > RAMP_TEMP_C:
+            continue
+        t = samples.t[a:b] - samples.t[a:b].mean()
+        x = samples.accel[a:b]
+        sxx = float(t @ t)
+        if sxx <= 0:
+            continue
+        slope = (t @ (x - x.mean(axis=0))) / sxx
+        resid = x - x.mean(axis=0) - np.outer(t, slope)
+        var = ratio * np.sum(resid ** 2, axis=0) / max(b - a - 2, 1) / sxx
+        var = np.where(var > 0, var, np.inf)
+        num += slope / var
+        den += 1.0 / var
+        span = float(samples.t[b - 1] - samples.t[a])
+        seconds += span
+        longest = max(longest, span)
+    if not np.all(den > 0):
+        return None
+    return {'slope': num / den, 'se': 1.0 / np.sqrt(den), 'seconds': seconds,
+            'longest_s': longest}
+
+
+def _confirm_with_ml(result, windows, search):
+    """
+    Name for a gn baseline only what the richer ml baseline also finds.
+
+    The effect search is run with the ml baseline too. An effect gn names is kept when
+    the ml search names it as well, or when it is nonorthogonality (the term gn lacks)
+    and the ml baseline's cross-axis terms are significant and large enough beside the
+    effects the ml search names (a time effect must not be taken for cross-axis terms).
+    When gn named something else, the gn search is run again over the confirmed
+    effects only, and the rest is listed in ``unconfirmed`` with the reason.
+    """
+    try:
+        ml = _search(windows, 'ml', **search)
+    except (CalibrationError, ValueError, np.linalg.LinAlgError) as err:
+        result.ml_check = {'checked': False, 'reason': str(err)}
+        for step in result.steps:
+            step['confirmed'] = 'not checked with the ml baseline: ' + str(err)
+        return result
+    found = set(ml.missing_effects)
+    allowed = set(found)
+    cross = _cross_axis_evidence(ml, search)
+    if cross['significant']:
+        allowed.add('nonorthogonality')
+    result.ml_check = {'checked': True, 'missing_effects': ml.missing_effects,
+                       'verdict': ml.verdict(), 'cross_axis': cross}
+    unconfirmed = [s['effect'] for s in result.steps if s['effect'] not in allowed]
+    if unconfirmed:
+        again = _search(windows, 'gn', allowed=allowed, **search)
+        again.ml_check = result.ml_check
+        again.vetoed = result.vetoed + again.vetoed
+        for name in unconfirmed:
+            reason = ('the ml baseline leaves no significant cross-axis term beside '
+                      + (', '.join(ml.missing_effects) or 'its baseline')
+                      if name == 'nonorthogonality' else
+                      'not found with the ml baseline (it names '
+                      + (', '.join(ml.missing_effects) or 'nothing') + ')')
+            again.unconfirmed.append({'effect': name, 'reason': reason})
+        result = again
+    for step in result.steps:
+        step['confirmed'] = ('found with the ml baseline too' if step['effect'] in found
+                             else "a term gn lacks: the ml fit's cross-axis terms are "
+                             'significant')
+    return result
+
+
+def _cross_axis_evidence(ml, search):
+    """
+    Test the ml baseline's cross-axis terms beside the effects the ml search named.
+
+    The ml model with its named effects against the same model with a diagonal T (gn):
+    F-test on the 3 cross-axis terms and their worst case (nonorthogonality's).
+    """
+    c = ml.conditions
+    fit_ml = ml.fits[-1]
+    effects = fit_ml.effects
+    T, bias, _ = Model('ml', effects).split(fit_ml.x)
+    gn = Model('gn', effects)
+    start = np.concatenate([gn.pack_baseline(np.diag(np.diag(T)), bias),
+                            fit_ml.x[9:]])
+    try:
+        _, fit_gn = fit_model('gn', effects, c, start)
+    except (ValueError, np.linalg.LinAlgError):
+        return {'significant': False, 'p': 1.0, 'worst_case_mg': 0.0}
+    drop = fit_gn.chi2 - fit_ml.chi2
+    dof = max(fit_ml.dof, 1)
+    F = (drop / 3.0) / max(fit_ml.chi2 / dof, 1e-300)
+    p = float(stats.f.sf(F, 3, dof))
+    worst = 1000.0 * float(np.max(np.abs(T[np.triu_indices(3, 1)]) / np.diag(T)[[0, 0, 1]]))
+    significant = bool(p < P_SUPPORT and drop - 3 * np.log(len(c.readings)) > 0
+                       and worst > ml.threshold_mg)
+    return {'significant': significant, 'p': p, 'F': float(F), 'worst_case_mg': worst}
 
 
 PARTIAL_SHARE = 0.05
@@ -195,35 +573,41 @@ def _demote_partial(result, c):
     Withdraw named effects that only explain part of a dependence of another shape.
 
     When what is left is not explained (``DiagnoseResult.explained``) and the
-    nonparametric probe in a time or temperature effect's own variable
-    (``Effect.variable``: time for ``bias_drift``, temperature for the
-    temperature effects) is still significant and still explains at least
+    nonparametric probe in a named effect's own variable (``Effect.variable``: time for
+    ``bias_drift``, temperature for the temperature effects, direction or |y| for the
+    orientation effects) is still significant and still explains at least
     ``PARTIAL_SHARE`` of the chi² the effect removed, the effect is a projection of
-    something the library lacks (a step, a curve, a cycle), not the cause: it is moved
-    to ``result.partial`` and the model is refitted without it.
+    something the library lacks (a step, a curve, a cycle, a higher-order direction
+    term), not the cause: it is moved to ``result.partial`` and the model is refitted
+    without it.
     """
     if result.explained:
         return
     partial = []
     for step in result.steps:
-        if EFFECTS[step['effect']].variable not in ('time', 'temperature'):
-            continue        # the direction probe also holds what the poses cannot tell apart
-        probe = result.probes.get(EFFECTS[step['effect']].variable)
+        variable = EFFECTS[step['effect']].variable
+        probes = [(name, p) for name, p in result.probes.items()
+                  if FAMILY[name] == FAMILY.get(variable, variable) and p['significant']]
         worst = step['evidence']['worst_case_mg']
         share = PARTIAL_SHARE * step['evidence']['delta_chi2']
-        if probe and probe['significant'] and probe['delta_chi2'] >= share:
+        probes = [(name, p) for name, p in probes if p['delta_chi2'] >= share]
+        if probes:
+            name, probe = max(probes, key=lambda item: item[1]['delta_chi2'])
             partial.append({'effect': step['effect'], 'worst_case_mg': worst,
-                            'variable': EFFECTS[step['effect']].variable,
-                            'left_rms_mg': probe['rms_mg'], 'left_p': probe['p']})
+                            'variable': name, 'left_rms_mg': probe['rms_mg'],
+                            'left_p': probe['p']})
     if not partial:
         return
     gone = {p['effect'] for p in partial}
+    objects = Model(result.baseline, result.fits[-1].effects).objects
     kept = [step for step in result.steps if step['effect'] not in gone]
     fits = [result.fits[0]]
     for step in kept:
-        effects = fits[-1].effects + [step['effect']]
-        start = np.concatenate([fits[-1].x, np.zeros(len(EFFECTS[step['effect']].param_names))])
+        bound = objects[step['effect']]
+        effects = fits[-1].effects + [bound]
+        start = np.concatenate([fits[-1].x, np.zeros(len(bound.param_names))])
         _, new_fit = fit_model(result.baseline, effects, c, start)
+        new_fit.dof -= bound.searched
         step['gap_before'], step['gap_after'] = fits[-1].gap, new_fit.gap
         fits.append(new_fit)
     result.steps, result.fits, result.partial = kept, fits, partial
@@ -291,12 +675,14 @@ def diagnose(samples, baseline='ml', gravity=9.80665, min_duration_s=0.5,
     windows = _detect_windows(samples, min_duration_s, threshold_factor)
     rate = samples.rate_hz
     noise = window_noise(samples, windows)
+    windows = noise.apply(windows)
     if noise.moving.any() and (~noise.moving).sum() >= min_windows(baseline):
         windows = windows.select(~noise.moving)
     else:
         noise.moving[:] = False
     result = diagnose_windows(windows, baseline, gravity, rate, rng, replicates,
-                              noise=noise, min_effect_mg=min_effect_mg)
+                              noise=noise, min_effect_mg=min_effect_mg,
+                              still=still_drift(samples, windows, noise))
     result.dropped_windows = int(noise.moving.sum())
     return result
 
