@@ -272,12 +272,13 @@ class TemperatureLag(PerAxisEffect):
         Return the time constants worth trying in this session, s.
 
         From twice the typical spacing of the windows (a shorter lag cannot be resolved;
-        at least 1 % of the session) to twice the session's span.
+        at least 1 % of the session) to the session's span (a longer one turns the
+        temperature's history into a slow integral that a drift imitates).
         """
         span = max(c.time_span, 1.0)
         spacing = float(np.median(np.diff(np.sort(c.time)))) if len(c.time) > 1 else 0.0
         low = min(max(0.01 * span, 2.0 * spacing), 0.5 * span)
-        return np.geomspace(low, 2.0 * span, self.TAU_GRID)
+        return np.geomspace(low, span, self.TAU_GRID)
 
     def bind(self, c, tau=None):
         """Return the effect bound to this session's temperature history with time constant tau."""
@@ -332,10 +333,15 @@ class BiasRandomWalk(Effect):
         k = self.degree or 0
         return tuple(f'o_{axis}_{j}' for axis in 'xyz' for j in range(1, k + 1))
 
-    @staticmethod
-    def degrees_for(windows):
-        """Return the numbers of smooth terms per axis to try in a session (2 to 12)."""
-        return range(2, int(min(12, max(2, (windows - 12) // 6))) + 1)
+    MAX_DEGREE = 4
+    """Most smooth terms per axis: they hold 87 % of a random walk's variance about its mean
+    (its cosine coefficients fall like 1/k); a dependence with more structure (a cycle, a
+    step) is left to the time probe and the step alternative."""
+
+    @classmethod
+    def degrees_for(cls, windows):
+        """Return the numbers of smooth terms per axis to try in a session (2 to 4)."""
+        return range(2, int(min(cls.MAX_DEGREE, max(2, (windows - 12) // 6))) + 1)
 
     def applicable(self, context, baseline):
         span = context.get('time_span', 0.0)

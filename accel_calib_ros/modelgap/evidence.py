@@ -160,12 +160,13 @@ def separation_advice(a, b, c):
     """Return what to record so that two confounded effects can be told apart."""
     pair = {a, b}
     thermal = pair & {'temperature_bias', 'temperature_scale', 'temperature_lag'}
-    if 'bias_random_walk' in pair and thermal:
+    r = float(np.corrcoef(c.temp, c.time)[0, 1]) if c.temp_span > 0 else 0.0
+    if pair & {'bias_drift', 'bias_random_walk'} and thermal and ('bias_random_walk' in pair
+                                                                  or abs(r) < 0.9):
         return ('the temperature follows a smooth curve in time, which a wandering offset can '
                 'follow too; let the temperature go up and down more than once, or hold it '
                 'steady for a while, so the two separate')
     if 'bias_drift' in pair and thermal:
-        r = float(np.corrcoef(c.temp, c.time)[0, 1]) if c.temp_span > 0 else 0.0
         return (f'temperature and time move together in this session (r = {r:.2f}); hold '
                 'the temperature steady for a while, or let it fall, so the two separate')
     if 'temperature_scale' in pair and thermal - {'temperature_scale'}:

@@ -296,6 +296,16 @@ class DiagnoseResult:
         return ('NOT explained by noise: no effect in the library brings the gap into the '
                 'noise band; the cause may lie outside the effect library')
 
+    def still_drift(self):
+        """Return the drift the still windows show, JSON-ready (mg/min per axis), or None."""
+        if not self.still:
+            return None
+        per_min = 60000.0 / G0
+        T = np.abs(np.diag(Model(self.baseline, []).split(self.fits[0].x)[0]))
+        return {'mg_per_min': (per_min * np.asarray(self.still['slope']) / T).tolist(),
+                'se_mg_per_min': (per_min * np.asarray(self.still['se']) / T).tolist(),
+                'seconds': self.still['seconds'], 'longest_s': self.still['longest_s']}
+
     def summary(self):
         """Return the JSON-ready machine summary of spec section 3 (plus extras)."""
         null = {'method': 'analytic F(dof, noise dof)', 'quantile': NULL_QUANTILE,
@@ -316,7 +326,8 @@ class DiagnoseResult:
             'threshold_mg': self.threshold_mg,
             'predicted_accuracy_mg': self.predicted_accuracy_mg,
             'candidates': self.candidates, 'below_threshold': self.below_threshold,
-            'partial': self.partial,
+            'partial': self.partial, 'vetoed': self.vetoed, 'unconfirmed': self.unconfirmed,
+            'ml_check': self.ml_check, 'still_drift': self.still_drift(),
             'probes': {k: {kk: vv for kk, vv in v.items() if not kk.startswith('_')}
                        for k, v in self.probes.items()},
             'null': null, 'null_gap_limit': self.null_limit, 'power': self.power(),
@@ -341,6 +352,8 @@ class DiagnoseResult:
             if where:
                 lines.append(f'    before it, residuals followed {where["variable"]} '
                              f'(r = {where["r"]:+.2f})')
+            if step.get('confirmed'):
+                lines.append(f'    with the ml baseline: {step["confirmed"]}')
         if not self.steps:
             lines.append('no missing effect is supported by this session')
         for cand in self.below_threshold:
@@ -351,6 +364,14 @@ class DiagnoseResult:
                          f'explains only part of a dependence on {item["variable"]} of another '
                          f'shape ({item["left_rms_mg"]:.2g} mg RMS left, p = '
                          f'{item["left_p"]:.1e})')
+        for item in self.vetoed:
+            lines.append(f'not named: {item["effect"]} (up to {item["worst_case_mg"]:.2g} mg): '
+                         f'{item["reason"]}')
+        for item in self.unconfirmed:
+            lines.append(f'not named with baseline {self.baseline}: {item["effect"]} '
+                         f'({item["reason"]})')
+        if self.ml_check and not self.ml_check.get('checked'):
+            lines.append(f'not checked with the ml baseline: {self.ml_check["reason"]}')
         for note in self.ambiguities:
             lines.append('note: ' + note)
         for name, reason in self.skipped.items():

@@ -182,10 +182,73 @@ def _search(windows, baseline, gravity, rate_hz, noise, min_effect_mg, max_steps
         model, fit = best['model'], best['fit']
         result.fits.append(fit)
         candidates.remove(best['effect'])
+    if len(result.steps) > 1:
+        model, fit = _drop_redundant(result, c)
     if fit.jac is not None:
         result.probes = residual_probes(model, fit, c)
         _demote_partial(result, c)
     return result
+
+
+def _drop_redundant(result, c):
+    """
+    Withdraw a named effect that a later one makes redundant (backward elimination).
+
+    Each named effect is tested against the final model without it (nested F-test and
+    ΔBIC, as when it was added): a linear drift named before a random walk that also
+    follows it, for example, then adds nothing. The weakest redundant one is withdrawn
+    (to ``vetoed``) and the rest refitted, until every named effect holds its place.
+    """
+    n = len(c.readings)
+    while len(result.steps) > 1:
+        fit = result.fits[-1]
+        objects = Model(result.baseline, fit.effects).objects
+        worst = None
+        for step in result.steps:
+            kept = [s for s in result.steps if s is not step]
+            effects = [objects[s['effect']] for s in kept]
+            model = Model(result.baseline, effects)
+            T, bias, params = Model(result.baseline, fit.effects).split(fit.x)
+            start = np.concatenate([model.pack_baseline(T, bias)]
+                                   + [params[s['effect']] for s in kept])
+            try:
+                _, without = fit_model(result.baseline, effects, c, start)
+            except (ValueError, np.linalg.LinAlgError):
+                continue
+            bound = objects[step['effect']]
+            k = len(bound.param_names) + bound.searched
+            drop = without.chi2 - fit.chi2
+            F = (drop / k) / max(fit.chi2 / max(fit.dof, 1), 1e-300)
+            p = float(stats.f.sf(F, k, max(fit.dof, 1)))
+            bic = delta_bic(without.chi2, drop, k, n)
+            if (p >= P_SUPPORT or bic <= 0) and (worst is None or p > worst[1]):
+                worst = (step, p, bic)
+        if worst is None:
+            break
+        step, p, bic = worst
+        later = [s['effect'] for s in result.steps if s is not step]
+        result.vetoed.append({'effect': step['effect'], 'worst_case_mg':
+                              step['evidence']['worst_case_mg'], 'F': step['evidence']['F'],
+                              'p': p, 'step': result.steps.index(step) + 1,
+                              'reason': f'redundant beside {", ".join(later)} (p = {p:.2g}, '
+                                        f'ΔBIC {bic:.0f})'})
+        _refit_steps(result, [s for s in result.steps if s is not step], c, objects)
+    fit = result.fits[-1]
+    return Model(result.baseline, fit.effects), fit
+
+
+def _refit_steps(result, kept, c, objects):
+    """Refit the named effects ``kept`` one after another; update steps and fits."""
+    fits = [result.fits[0]]
+    for step in kept:
+        bound = objects[step['effect']]
+        effects = fits[-1].effects + [bound]
+        start = np.concatenate([fits[-1].x, np.zeros(len(bound.param_names))])
+        _, new_fit = fit_model(result.baseline, effects, c, start)
+        new_fit.dof -= bound.searched
+        step['gap_before'], step['gap_after'] = fits[-1].gap, new_fit.gap
+        fits.append(new_fit)
+    result.steps, result.fits = kept, fits
 
 
 def _try(name, model, fit, c, threshold, bound=None):
@@ -305,9 +368,13 @@ def _disagreement(cand, alternatives, model, fit, c, still):
       ``COLLINEAR`` of it inside means the two are confounded in this session, e.g. a
       temperature that is a smooth function of time, and the probe cannot judge): the
       candidate is only a projection of a dependence on that variable.
-    - A time effect against the still windows (``still_drift``): a drift that the still
-      data contradict, or a single jump in time (a mount shifting) that explains the
-      disagreement better than a drift or a wander does.
+    - A time effect against the temperature probe: a wander that is a function of the
+      temperature in this session and no better than the temperature probe is left to
+      the temperature (a recorded cause comes first).
+    - A time effect (or a lagged temperature, which acts through time) against the still
+      windows (``still_drift``): a drift that the still data contradict, or a single jump
+      in time (a mount shifting) that explains the disagreement better than a drift, a
+      wander or a lag does.
     """
     name = cand['effect']
     family = FAMILY.get(EFFECTS[name].variable, EFFECTS[name].variable)
@@ -335,8 +402,17 @@ def _disagreement(cand, alternatives, model, fit, c, still):
                     f'{alt["delta_bic"]:.0f} against {cand["bic"]:.0f}), stays significant '
                     f'after {name} (p = {after[probe]["p"]:.1e}), and {name} adds nothing '
                     f'beside it (p = {on_top:.2g})')
-    if family != 'time':
+    if family != 'time' and not cand['bound'].searched:
         return ''
+    temp = alternatives.get('temperature') if family == 'time' else None
+    if temp and temp['significant'] and temp['delta_chi2'] >= cand['drop']:
+        u = temp['_basis']
+        inside = float(np.sum((u.T @ signal) ** 2) / max(signal @ signal, 1e-300))
+        if inside > COLLINEAR:
+            return (f'it follows the temperature: the temperature probe explains as much '
+                    f'(Δχ² {temp["delta_chi2"]:.0f} against {cand["drop"]:.0f}) and '
+                    f'{100 * inside:.0f} % of its signal is a function of temperature in this '
+                    'session; a recorded cause comes before a wander in time')
     if name == 'bias_drift' and still is not None:
         reason = _still_contradicts(cand, still)
         if reason:
@@ -450,39 +526,60 @@ def _still_contradicts(cand, still):
             + f' (p = {p:.1e})')
 
 
+SAME_POSE_DEG = 0.5
+"""Consecutive windows whose mean directions differ less than this hold the same pose."""
+
+
 def still_drift(samples, windows, noise=None):
     """
-    Return the drift of the offset that the still windows themselves show, or None.
+    Return the drift of the offset that the still data themselves show, or None.
 
-    Inside a window the pose is fixed, so with a steady temperature (moved less than
-    ``RAMP_TEMP_C``, or not recorded) the readings change only by a drift: the least-squares
-    slope of each window's samples against time, with variance R sigma² / sum (t - t̄)²
-    (R the noise's low-frequency factor, ``window_noise``), pooled over windows by their
-    inverse variances. A long still segment (a warm-up, an initial rest) dominates.
+    Within a pose the direction of gravity is fixed, so with a steady temperature (moved
+    less than ``RAMP_TEMP_C``, or not recorded) the readings change only by a drift.
+    Consecutive windows in the same pose (mean directions within ``SAME_POSE_DEG``: the
+    detector may cut a long rest into pieces) form one still segment; the least-squares
+    slope of its samples against time (one offset per segment) has variance
+    R sigma² / sum (t - t̄)², R the noise's low-frequency factor (``window_noise``), and the
+    segments are pooled by their inverse variances. A long still segment (a warm-up, an
+    initial rest) dominates.
 
     :returns: dict 'slope' (3,) reading units per s, 'se' (3,), 'seconds' of still data
-        used, 'longest_s'; None without a window of at least 8 samples.
+        used, 'longest_s' (the longest segment); None without a segment of 8 samples.
     """
     ratio = (noise.inflation / noise.taper) if noise is not None else np.ones(3)
     ratio = np.maximum(ratio, 1.0)
+    order = np.argsort(windows.t_mid, kind='stable')
+    unit = windows.mean / np.linalg.norm(windows.mean, axis=1, keepdims=True)
+    segments, current = [], []
+    for w in order:
+        a, b = windows.start[w], windows.stop[w]
+        steady = samples.temp is None or np.ptp(samples.temp[a:b]) <= RAMP_TEMP_C
+        if not steady or b - a < 8:
+            if current:
+                segments.append(current)
+            current = []
+            continue
+        if current and float(unit[current[-1]] @ unit[w]) < np.cos(np.radians(SAME_POSE_DEG)):
+            segments.append(current)
+            current = []
+        current.append(w)
+    if current:
+        segments.append(current)
     num, den, seconds, longest = np.zeros(3), np.zeros(3), 0.0, 0.0
-    for a, b in zip(windows.start, windows.stop):
-        if b - a < 8:
-            continue
-        if samples.temp is not None and np.ptp(samples.temp[a:b]) > RAMP_TEMP_C:
-            continue
-        t = samples.t[a:b] - samples.t[a:b].mean()
-        x = samples.accel[a:b]
+    for segment in segments:
+        index = np.concatenate([np.arange(windows.start[w], windows.stop[w]) for w in segment])
+        t = samples.t[index] - samples.t[index].mean()
+        x = samples.accel[index] - samples.accel[index].mean(axis=0)
         sxx = float(t @ t)
         if sxx <= 0:
             continue
-        slope = (t @ (x - x.mean(axis=0))) / sxx
-        resid = x - x.mean(axis=0) - np.outer(t, slope)
-        var = ratio * np.sum(resid ** 2, axis=0) / max(b - a - 2, 1) / sxx
+        slope = (t @ x) / sxx
+        resid = x - np.outer(t, slope)
+        var = ratio * np.sum(resid ** 2, axis=0) / max(len(t) - 2, 1) / sxx
         var = np.where(var > 0, var, np.inf)
         num += slope / var
         den += 1.0 / var
-        span = float(samples.t[b - 1] - samples.t[a])
+        span = float(t[-1] - t[0])
         seconds += span
         longest = max(longest, span)
     if not np.all(den > 0):
@@ -600,19 +697,11 @@ def _demote_partial(result, c):
         return
     gone = {p['effect'] for p in partial}
     objects = Model(result.baseline, result.fits[-1].effects).objects
-    kept = [step for step in result.steps if step['effect'] not in gone]
-    fits = [result.fits[0]]
-    for step in kept:
-        bound = objects[step['effect']]
-        effects = fits[-1].effects + [bound]
-        start = np.concatenate([fits[-1].x, np.zeros(len(bound.param_names))])
-        _, new_fit = fit_model(result.baseline, effects, c, start)
-        new_fit.dof -= bound.searched
-        step['gap_before'], step['gap_after'] = fits[-1].gap, new_fit.gap
-        fits.append(new_fit)
-    result.steps, result.fits, result.partial = kept, fits, partial
-    model = Model(result.baseline, fits[-1].effects)
-    result.probes = residual_probes(model, fits[-1], c)
+    _refit_steps(result, [step for step in result.steps if step['effect'] not in gone], c,
+                 objects)
+    result.partial = partial
+    model = Model(result.baseline, result.fits[-1].effects)
+    result.probes = residual_probes(model, result.fits[-1], c)
 
 
 VIBRATION_CUTOFF_HZ = 5.0
