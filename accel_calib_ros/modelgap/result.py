@@ -14,6 +14,10 @@ MIN_EFFECT_MG = 1.0
 """Smallest practical threshold, mg: an effect smaller than this is never named."""
 
 
+WALK_TOLERANCE = 2.0
+"""The rest is a named random walk's roughness when its scatter is within this factor of it."""
+
+
 NEGLIGIBLE_FACTOR = 3.0
 """The rest is negligible when this many times its per-window scatter is below the threshold."""
 
@@ -131,6 +135,38 @@ class DiagnoseResult:
         return bool(not self.statistically_explained and self.window_noise is not None
                     and self.window_noise.coloured and not self.smooth_trend)
 
+    def walk_roughness(self):
+        """
+        Return the scatter per window, m/s², that a named random walk leaves, 0 without one.
+
+        ``bias_random_walk`` follows the offset with a few cosine terms; a random walk
+        of K per √s has cosine coefficients of variance 2 K² T / (k pi)² over a session
+        of T seconds, so the terms beyond the d fitted leave a wander of variance about
+        K² T / (pi² d) per axis that varies from window to window. K is estimated from the
+        fitted coefficients; the scatter is taken along gravity, averaged over windows.
+        """
+        fit = self.fits[-1]
+        model = Model(self.baseline, fit.effects)
+        walk = model.objects.get('bias_random_walk')
+        if walk is None:
+            return 0.0
+        T, _, params = model.split(fit.x)
+        d = walk.degree
+        coef = params['bias_random_walk'].reshape(3, d) / np.abs(np.diag(T))[:, None]
+        k = np.arange(1, d + 1)
+        k2 = np.mean(coef ** 2 * (k * np.pi) ** 2 / (2.0 * walk.span), axis=1)
+        rough = k2 * walk.span / (np.pi ** 2 * d)                  # variance per axis
+        a = model.true_accel(fit.x, self.conditions)
+        n = a / np.linalg.norm(a, axis=1, keepdims=True)
+        return float(np.sqrt(np.mean(n ** 2 @ rough)))
+
+    @property
+    def walk_explains_rest(self):
+        """Tell whether what is left is the roughness of a named random walk (no smooth trend)."""
+        rough = self.walk_roughness()
+        return bool(rough > 0 and not self.smooth_trend
+                    and self.excess_scatter() <= WALK_TOLERANCE * rough)
+
     @property
     def scatter_below_noise(self):
         """Tell whether the windows scatter significantly less than the noise level says."""
@@ -211,6 +247,8 @@ class DiagnoseResult:
             return 'cannot tell' if self.cannot_tell else 'explained'
         if self.negligible:
             return 'negligible'
+        if self.walk_explains_rest:
+            return 'walk'
         if self.slow_noise:
             return 'cannot tell' if self.cannot_tell else 'slow noise'
         return 'not explained'
@@ -225,7 +263,7 @@ class DiagnoseResult:
         noise is below the practical threshold (detectable, irrelevant), or when what is
         left is an unstructured scatter of noise slower than a window (``slow_noise``).
         """
-        return self.outcome in ('explained', 'negligible', 'slow noise')
+        return self.outcome in ('explained', 'negligible', 'slow noise', 'walk')
 
     @property
     def outside_library(self):
@@ -288,6 +326,11 @@ class DiagnoseResult:
             return (f'beyond the noise, but the rest ({1000 * self.excess_scatter() / G0:.2g} '
                     f'mg per window) is below the practical threshold '
                     f'({self.threshold_mg:.2g} mg)')
+        if kind == 'walk':
+            return (f'explained by noise and the random walk: the rest '
+                    f'({1000 * self.excess_scatter() / G0:.2g} mg per window) is what the '
+                    f'walk wanders between its smooth terms (about '
+                    f'{1000 * self.walk_roughness() / G0:.2g} mg), with no smooth trend left')
         if kind == 'slow noise':
             return (f'explained by noise slower than a window: the window means scatter '
                     f'{self.gap_after:.2g} times the noise inside them, with no smooth trend '

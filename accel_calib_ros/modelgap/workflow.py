@@ -592,7 +592,8 @@ def _confirm_with_ml(result, windows, search):
     """
     Name for a gn baseline only what the richer ml baseline also finds.
 
-    The effect search is run with the ml baseline too. An effect gn names is kept when
+    The effect search is run with the ml baseline too (with gn's practical threshold, so
+    that only the baseline differs). An effect gn names is kept when
     the ml search names it as well, or when it is nonorthogonality (the term gn lacks)
     and the ml baseline's cross-axis terms are significant and large enough beside the
     effects the ml search names (a time effect must not be taken for cross-axis terms).
@@ -600,7 +601,8 @@ def _confirm_with_ml(result, windows, search):
     effects only, and the rest is listed in ``unconfirmed`` with the reason.
     """
     try:
-        ml = _search(windows, 'ml', **search)
+        # The same practical threshold: the question is the baseline, not the size.
+        ml = _search(windows, 'ml', **(search | {'min_effect_mg': result.threshold_mg}))
     except (CalibrationError, ValueError, np.linalg.LinAlgError) as err:
         result.ml_check = {'checked': False, 'reason': str(err)}
         for step in result.steps:
