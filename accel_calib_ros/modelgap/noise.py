@@ -115,6 +115,21 @@ POWER = 0.8
 """The power figure is the smallest error detected with this probability."""
 
 
+def detection_probability(error_mg, dof, noise_dof, inv_var_sum, n, quantile=NULL_QUANTILE):
+    """
+    Return the probability that the gap test detects a systematic error of ``error_mg``.
+
+    The same error model as ``min_detectable_mg`` (an error of that size in every window,
+    in a pattern the model cannot absorb).
+    """
+    dof = max(int(dof), 1)
+    x = null_gap_limit(dof, noise_dof, quantile) ** 2
+    lam = (error_mg * G0 / 1000.0) ** 2 * inv_var_sum * dof / n
+    if not np.isfinite(noise_dof):
+        return float(stats.ncx2.sf(x * dof, dof, lam))
+    return float(stats.ncf.sf(x, dof, max(noise_dof, 1e-3), lam))
+
+
 def min_detectable_mg(dof, noise_dof, inv_var_sum, n, quantile=NULL_QUANTILE, power=POWER):
     """
     Return the smallest systematic error per window, mg, that the gap test detects.
@@ -277,6 +292,33 @@ def _pooled(ratios):
     return median, 1.2533 * spread / np.sqrt(len(ratios))
 
 
+AXES_AGREE_P = 0.01
+"""The three axes share one R when their estimates agree at this level (chi², 2 dof)."""
+
+
+def _common(inflation, rel):
+    """
+    Return the per-axis R, pooled into one value when the three axes agree.
+
+    Estimates of R from a few blocks per window scatter a lot when the noise is correlated
+    over a good part of a window; three estimates of one filter's R that differ only by
+    that scatter would otherwise weigh windows by their direction (the wrong way on
+    the underestimated axes). When the axes agree within their standard errors (chi² test
+    at ``AXES_AGREE_P``), each gets the inverse-variance mean and its standard error
+    (sqrt(3) times each axis's share, so that ``WindowNoise.dof`` counts it once).
+    """
+    se = rel * inflation
+    if not np.all(np.isfinite(se)) or np.any(se <= 0):
+        return inflation, rel
+    weight = 1.0 / se ** 2
+    mean = float(np.sum(weight * inflation) / np.sum(weight))
+    chi2 = float(np.sum(weight * (inflation - mean) ** 2))
+    if stats.chi2.sf(chi2, 2) < AXES_AGREE_P:
+        return inflation, rel
+    common_rel = np.sqrt(1.0 / np.sum(weight)) / mean
+    return np.full(3, mean), np.full(3, np.sqrt(3.0) * common_rel)
+
+
 def window_noise(samples, windows, blocks=8):
     """
     Measure the variance of each window mean from the data's own within-window spectrum.
@@ -291,11 +333,14 @@ def window_noise(samples, windows, blocks=8):
     block lengths:
 
     - equal within twice their standard error (and R(n/16), when the windows are long
-      enough, equal to R(n/8)): white at these scales, R(n/8) is used;
-    - otherwise R approaches its limit like R_inf + C/m and is extrapolated to the
-      whole window, R(n) = 1.875 R(n/8) - 0.875 R(n/16) (the more precise pair), or
-      1.75 R(n/4) - 0.75 R(n/8) for short windows: larger for longer blocks is
-      correlated noise.
+      enough, equal to R(n/8)) on every axis: white at these scales, R(n/8) is used;
+    - otherwise (on any axis: the noise's filter is shared) R approaches its limit like
+      R_inf + C/m and is extrapolated to the whole window on every axis,
+      R(n) = 1.875 R(n/8) - 0.875 R(n/16) (the more precise pair), or
+      1.75 R(n/4) - 0.75 R(n/8) for short windows: larger for longer blocks is correlated
+      noise; when R(n/4) leaves the line of the first pair (noise correlated over much of
+      a window), a quadratic in 1/m through all three,
+      R(n) = 2.1875 R(n/4) - 1.40625 R(n/8) + 0.21875 R(n/16).
 
     Vibration: when on some axis the Hann-tapered spectrum near 0 Hz is well below
     R(n/8) (half, and 3 standard errors), the sample scatter is power well above 0 Hz.
@@ -346,33 +391,48 @@ def window_noise(samples, windows, blocks=8):
     finest = np.asarray(finest)[keep]
     spectral = _low_frequency_ratio(spectra)
     vibrating = np.zeros(3, bool)
-    for i in range(3):
-        r8, se8 = _pooled(short[:, i])
-        r4, se4 = _pooled(long_[:, i])
+    pooled = [[_pooled(ratios[:, i]) for ratios in (finest, short, long_)] for i in range(3)]
+    # Correlation is a property of the sensor's noise (its filter), not of one axis: when
+    # any axis shows R changing with the block length, every axis is extrapolated, so
+    # that a marginal test does not split alike axes into 'white' and 'correlated'.
+    changing, bending = [], []
+    for (r16, se16), (r8, se8), (r4, se4) in pooled:
+        fine = np.isfinite(r16) and abs(r8 - r16) > 2.0 * np.hypot(se8, se16)
+        changing.append(fine or (np.isfinite(r4) and abs(r4 - r8) > 2.0 * np.hypot(se4, se8)))
+        # R(n/4) off the line of R(n/16) and R(n/8): noise correlated over a good part of
+        # a window, where R still bends (on any axis, as above).
+        bend = r4 - (1.5 * r8 - 0.5 * r16)
+        bending.append(bool(np.isfinite(bend) and abs(bend) > 2.0 * np.sqrt(
+            se4 ** 2 + (1.5 * se8) ** 2 + (0.5 * se16) ** 2)))
+    for i, ((r16, se16), (r8, se8), (r4, se4)) in enumerate(pooled):
         if not (np.isfinite(r8) and np.isfinite(r4)) or r8 <= 0:
             continue
-        r16, se16 = _pooled(finest[:, i])
-        fine = np.isfinite(r16) and abs(r8 - r16) > 2.0 * np.hypot(se8, se16)
-        if abs(r4 - r8) <= 2.0 * np.hypot(se4, se8) and not fine:
+        if not any(changing):
             value, se = r8, se8
-        elif fine:
+        elif np.isfinite(r16):
             # R(m) = R_inf + C/m: C < 0 for correlated noise (a DLPF, AR noise), C > 0 for
             # vibration without power at 0 Hz (its block means average down like 1/m).
-            # Extrapolated from n/16 and n/8 to the whole window (the precise pair).
+            # Extrapolated from n/16 and n/8 to the whole window (the precise pair) ...
             value = max(1.875 * r8 - 0.875 * r16, 0.125 * r8)
             se = np.hypot(1.875 * se8, 0.875 * se16)
-            method[i] = 'correlated' if r8 > r16 else 'averaging down'
+            # ... unless R still bends at n/4: a quadratic in 1/m through all three then.
+            if any(bending):
+                value = max(2.1875 * r4 - 1.40625 * r8 + 0.21875 * r16, 0.125 * r8)
+                se = np.sqrt((2.1875 * se4) ** 2 + (1.40625 * se8) ** 2
+                             + (0.21875 * se16) ** 2)
+            method[i] = 'correlated' if value > r8 else 'averaging down'
         else:
             # The same from n/8 and n/4 (windows too short for 16 blocks).
             value = max(1.75 * r4 - 0.75 * r8, 0.25 * r4)
             se = np.hypot(1.75 * se4, 0.75 * se8)
-            method[i] = 'correlated' if r4 > r8 else 'averaging down'
+            method[i] = 'correlated' if value > r8 else 'averaging down'
         rs, ses = _pooled(spectral[:, i])
         vibrating[i] = bool(np.isfinite(rs) and rs < 0.5 * r8
                             and rs < r8 - 3.0 * np.hypot(ses, se8))
         inflation[i] = max(value, 1e-3)
         rel[i] = se / inflation[i]
     if not vibrating.any():
+        inflation, rel = _common(inflation, rel)
         return WindowNoise(inflation, rel, method, moving)
     # Vibration: tapered means, and their noise from the spectrum below the vibration.
     means, factor = hann_means(samples, windows)
@@ -386,6 +446,7 @@ def window_noise(samples, windows, blocks=8):
         rel[i] = se / value
         method[i] = 'vibration' if vibrating[i] else 'tapered spectrum'
         bins.append(k)
+    inflation, rel = _common(inflation, rel)
     return WindowNoise(inflation, rel, method, moving, means=means, taper=taper,
                        spectrum_bins=bins)
 

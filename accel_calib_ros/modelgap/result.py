@@ -7,8 +7,8 @@ from scipy import optimize, stats
 
 from .effects import G0
 from .model import Conditions, Model
-from .noise import (min_detectable_mg, null_gap_limit, null_gap_p, NULL_QUANTILE, POWER,
-                    WindowNoise)
+from .noise import (detection_probability, min_detectable_mg, null_gap_limit, null_gap_p,
+                    NULL_QUANTILE, POWER, WindowNoise)
 
 MIN_EFFECT_MG = 1.0
 """Smallest practical threshold, mg: an effect smaller than this is never named."""
@@ -16,6 +16,10 @@ MIN_EFFECT_MG = 1.0
 
 WALK_TOLERANCE = 2.0
 """The rest is a named random walk's roughness when its scatter is within this factor of it."""
+
+
+CANNOT_TELL_POWER = 0.5
+"""Below this probability of detecting an error of the practical threshold: cannot tell."""
 
 
 NEGLIGIBLE_FACTOR = 3.0
@@ -202,7 +206,8 @@ class DiagnoseResult:
         (within windows: its measured degrees of freedom; between windows: the model's
         dof); ``min_detectable_mg_known_noise``: the same with the level known exactly,
         so the difference is what the noise level's own uncertainty costs. None when no
-        error size would be detected.
+        error size would be detected. ``at_threshold``: the probability of detecting an
+        error of the practical threshold's size.
         """
         fit = self.fits[-1]
         key = (id(fit), self.gap_after, self.noise_dof, self.noise_source)
@@ -216,11 +221,13 @@ class DiagnoseResult:
             n = len(s)
             mde = min_detectable_mg(fit.dof, nu, inv, n)
             known = min_detectable_mg(fit.dof, float('inf'), inv, n)
+            at_threshold = detection_probability(self.threshold_mg, fit.dof, nu, inv, n)
             self._power_memo.clear()
             self._power_memo[key] = {
                 'min_detectable_mg': mde if np.isfinite(mde) else None,
                 'min_detectable_mg_known_noise': known if np.isfinite(known) else None,
                 'probability': POWER, 'quantile': NULL_QUANTILE,
+                'at_threshold': at_threshold,
                 'noise_source': self.noise_source,
                 'noise_dof': nu if np.isfinite(nu) else None}
         return dict(self._power_memo[key])
@@ -230,19 +237,25 @@ class DiagnoseResult:
         """
         Tell whether the test accepts the gap without the power to see a practical error.
 
-        The gap is within its null limit (or what is left is slow noise), but the smallest
-        error the test detects (``power``) exceeds the practical threshold: "explained by
-        noise" would be vacuous (a noise level measured with a few degrees of freedom
-        accepts any gap; slow noise of a few mg hides an error of a few mg).
+        The gap is within its null limit (or what is left is slow noise), but an error of
+        the practical threshold's size would be missed more often than seen (detection
+        probability below ``CANNOT_TELL_POWER``, see ``power``): "explained by noise" would
+        be vacuous (a noise level measured with a few degrees of freedom accepts any gap;
+        slow noise of a few mg hides an error of a few mg).
         """
         if not (self.statistically_explained or self.slow_noise):
             return False
-        mde = self.power()['min_detectable_mg']
-        return mde is None or mde > self.threshold_mg
+        return self.power()['at_threshold'] < CANNOT_TELL_POWER
 
     @property
     def outcome(self):
-        """Return the kind of verdict: explained, cannot tell, negligible, slow noise, ..."""
+        """
+        Return the kind of verdict.
+
+        'explained', 'cannot tell' (no power, see ``cannot_tell``), 'negligible',
+        'walk' (the rest is a named random walk's roughness), 'slow noise' or
+        'not explained'.
+        """
         if self.statistically_explained:
             return 'cannot tell' if self.cannot_tell else 'explained'
         if self.negligible:
@@ -315,13 +328,14 @@ class DiagnoseResult:
         if kind == 'cannot tell':
             power = self.power()
             mde, known = power['min_detectable_mg'], power['min_detectable_mg_known_noise']
-            size = 'any' if mde is None else f'{mde:.2g} mg'
+            size = 'no error' if mde is None else f'an error of {mde:.2g} mg per window'
             cause = ('noise too uncertain' if known is not None and known <= self.threshold_mg
                      else 'noise too large')
             return (f'cannot tell: {cause} (noise level from {power["noise_source"]}, '
-                    f'{_dof_text(power["noise_dof"])}); only an error of {size} per window '
-                    f'would be detected, above the practical threshold '
-                    f'({self.threshold_mg:.2g} mg)')
+                    f'{_dof_text(power["noise_dof"])}); an error of the practical threshold '
+                    f'({self.threshold_mg:.2g} mg) would be detected with only '
+                    f'{100 * power["at_threshold"]:.0f} % probability, and {size} with '
+                    f'{100 * power["probability"]:.0f} %')
         if kind == 'negligible':
             return (f'beyond the noise, but the rest ({1000 * self.excess_scatter() / G0:.2g} '
                     f'mg per window) is below the practical threshold '

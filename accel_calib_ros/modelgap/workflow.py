@@ -184,6 +184,8 @@ def _search(windows, baseline, gravity, rate_hz, noise, min_effect_mg, max_steps
         candidates.remove(best['effect'])
     if len(result.steps) > 1:
         model, fit = _drop_redundant(result, c)
+    if result.steps and noise.coloured:
+        model, fit = _within_slow_noise(result, c)
     if fit.jac is not None:
         result.probes = residual_probes(model, fit, c)
         _demote_partial(result, c)
@@ -233,6 +235,51 @@ def _drop_redundant(result, c):
                               'reason': f'redundant beside {", ".join(later)} (p = {p:.2g}, '
                                         f'ΔBIC {bic:.0f})'})
         _refit_steps(result, [s for s in result.steps if s is not step], c, objects)
+    fit = result.fits[-1]
+    return Model(result.baseline, fit.effects), fit
+
+
+SLOW_FACTOR = 2.0
+"""A time or temperature effect must stand this many times above the slow noise's scatter."""
+
+
+def _within_slow_noise(result, c):
+    """
+    Withdraw time and temperature effects no larger than the noise's own slow wander.
+
+    When the noise inside the windows is correlated (``WindowNoise.coloured``), noise
+    slower than a window makes the window means scatter beyond the within-window level,
+    and part of that scatter is smooth in time: an offset that wanders by itself. A named
+    effect in time or temperature whose signal (RMS over the windows, along gravity) is
+    not ``SLOW_FACTOR`` times the scatter left beyond the within-window noise
+    (``DiagnoseResult.excess_scatter``) is no larger than that wander: it is withdrawn
+    (to ``vetoed``) and the rest refitted.
+    """
+    fit = result.fits[-1]
+    model = Model(result.baseline, fit.effects)
+    excess = result.excess_scatter()
+    if excess <= 0:
+        return model, fit
+    _, s = model.residual_parts(fit.x, c)
+    params = model.split(fit.x)[2]
+    gone = []
+    for step in result.steps:
+        if FAMILY.get(EFFECTS[step['effect']].variable) not in ('time', 'temperature'):
+            continue
+        j = model.effect_jacobian(fit.x, c, step['effect'])
+        signal = float(np.sqrt(np.mean((s * (j @ params[step['effect']])) ** 2)))
+        if signal < SLOW_FACTOR * excess:
+            gone.append(step)
+            result.vetoed.append({
+                'effect': step['effect'], 'worst_case_mg': step['evidence']['worst_case_mg'],
+                'F': step['evidence']['F'], 'p': step['evidence']['p'],
+                'step': result.steps.index(step) + 1,
+                'reason': f'no larger than the wander of the slow noise: its signal is '
+                          f'{1000 * signal / G0:.2g} mg RMS against {1000 * excess / G0:.2g} '
+                          'mg per window of scatter beyond the within-window noise, which is '
+                          'correlated'})
+    if gone:
+        _refit_steps(result, [s for s in result.steps if s not in gone], c, model.objects)
     fit = result.fits[-1]
     return Model(result.baseline, fit.effects), fit
 
@@ -805,7 +852,9 @@ def held_out_check(windows, result, inflation=None):
     cal = calibrate(train.readings, train.gravity, result.baseline,
                     windows.count[even].astype(float))
     start = model_start(result.baseline, cal)
-    for key, effects in (('baseline_rms', []), ('with_effects_rms', out['effects'])):
+    # The effects as bound to this session (a lag's temperature history, a walk's span).
+    found = result.fits[-1].effects
+    for key, effects in (('baseline_rms', []), ('with_effects_rms', found)):
         model = Model(result.baseline, effects)
         x0 = np.concatenate([start, np.zeros(model.n_params - len(start))])
         x, _, _ = model.fit(train, x0)
