@@ -425,12 +425,19 @@ def real():
 # -- round three: power, agreement with all the evidence, lag, random walk -------------
 
 def verdict_row(found):
-    """Return (named, not explained, cannot tell, vacuous, power mg, noise dof) of a result."""
-    power = found.power()['min_detectable_mg']
+    """
+    Return (named, not explained, cannot tell, vacuous, power mg, noise dof) of a result.
+
+    Vacuous: a verdict of noise (explained, slow noise, the walk's rest) from a test that
+    would detect an error of the practical threshold with less than 50 % probability, or
+    whose null limit exceeds 5 (the previous round's failure: 826).
+    """
+    power = found.power()
     vacuous = found.outcome in ('explained', 'slow noise', 'walk') and (
-        power is None or power > found.threshold_mg)
+        power['at_threshold'] < 0.5 or found.null_limit > 5.0)
+    mde = power['min_detectable_mg']
     return (bool(found.missing_effects), found.outside_library, found.outcome == 'cannot tell',
-            vacuous, np.inf if power is None else power, found.noise_dof)
+            vacuous, np.inf if mde is None else mde, found.noise_dof)
 
 
 def power_classes(trials):
@@ -510,7 +517,8 @@ def new_effects(trials):
             after.append(found.gap_after)
             with without('temperature_lag', 'bias_random_walk'):
                 previous = diagnose_windows(windows, 'ml')
-            old.append('+'.join(previous.missing_effects) or 'nothing')
+            old.append(('+'.join(previous.missing_effects) or 'nothing') + ', '
+                       + ('NOT explained' if previous.outside_library else previous.outcome))
         common = max(set(old), key=old.count)
         error = np.median(errors) if errors else np.nan
         print(f'  {tau:5.0f}s {named / trials:11.0%} {error:17.0%}'

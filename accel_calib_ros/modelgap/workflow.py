@@ -164,10 +164,13 @@ def _search(windows, baseline, gravity, rate_hz, noise, min_effect_mg, max_steps
         supported.remove(tied[0])
         supported.insert(0, tied[0])
         alternatives = residual_probes(model, fit, c)
-        best = None
+        best = deferred = None
         for cand in supported:
             reason = (_disagreement(cand, alternatives, model, fit, c, still)
                       or _lag_against_pair(cand, tried, model, fit, c))
+            if not reason and _walk_against_drift(cand, tried, model, fit, c):
+                deferred = deferred or cand     # the straight drift first, if it holds
+                continue
             if not reason:
                 best = cand
                 break
@@ -175,6 +178,7 @@ def _search(windows, baseline, gravity, rate_hz, noise, min_effect_mg, max_steps
                                   'worst_case_mg': cand['worst_case_mg'], 'F': cand['F'],
                                   'p': cand['p'], 'step': len(result.steps) + 1})
             candidates.remove(cand['effect'])
+        best = best or deferred
         if best is None:
             break
         best = _refine(best, model, fit, c, threshold)
@@ -285,7 +289,11 @@ def _within_slow_noise(result, c):
 
 
 def _refit_steps(result, kept, c, objects):
-    """Refit the named effects ``kept`` one after another; update steps and fits."""
+    """Refit the named effects ``kept`` one after another; update steps, fits and notes."""
+    names = {step['effect'] for step in kept}
+    # A note on what a withdrawn effect was confounded with goes with it.
+    result.ambiguities = [note for note in result.ambiguities
+                          if note.split(' and ', 1)[0] in names]
     fits = [result.fits[0]]
     for step in kept:
         bound = objects[step['effect']]
@@ -502,6 +510,36 @@ def _lag_against_pair(cand, tried, model, fit, c):
     return (f'an offset following the temperature plus a drift in time explains the '
             f'disagreement as well (ΔBIC {bic:.0f} against {cand["bic"]:.0f} for a lag of '
             f'tau = {cand["bound"].tau:.3g} s)')
+
+
+def _walk_against_drift(cand, tried, model, fit, c):
+    """
+    Return why a wandering offset is not needed beside a straight drift, or ''.
+
+    A random walk's smooth terms also follow a straight drift; the walk comes after
+    ``bias_drift``, the simpler time effect, unless it adds significantly to it (F-test,
+    ΔBIC). (It is named still when the drift turns out not to hold.)
+    """
+    if cand['effect'] != 'bias_random_walk':
+        return ''
+    drift = [t for t in tried if t['effect'] == 'bias_drift']
+    if not drift or not drift[0]['significant']:
+        return ''
+    both = fit.effects + [drift[0]['bound'], cand['bound']]
+    k = len(cand['bound'].param_names)
+    start = np.concatenate([drift[0]['fit'].x, np.zeros(k)])
+    try:
+        _, joint = fit_model(model.baseline, both, c, start)
+    except (ValueError, np.linalg.LinAlgError):
+        return ''
+    drop = drift[0]['fit'].chi2 - joint.chi2
+    F = (drop / k) / max(joint.chi2 / max(joint.dof, 1), 1e-300)
+    p = float(stats.f.sf(F, k, max(joint.dof, 1)))
+    bic = delta_bic(drift[0]['fit'].chi2, drop, k, len(c.readings))
+    if p < P_SUPPORT and bic > 0:
+        return ''
+    return (f'a straight drift in time explains it as well: the wander adds nothing beside '
+            f'bias_drift (p = {p:.2g}, ΔBIC {bic:.0f})')
 
 
 def _best_step(model, fit, c):
