@@ -67,8 +67,9 @@ class WindowNoise:
         """
         ratio = self.inflation / self.taper
         se = self.relative_se * ratio
-        return bool(any(m == 'correlated' for m in self.method)
-                    or np.any((ratio > 1.2) & (ratio - 1.0 > 3.0 * se)))
+        if np.ptp(self.inflation) == 0:
+            se = se / np.sqrt(3.0)          # one R shared by the axes (``_common``)
+        return bool(np.any((ratio > 1.2) & (ratio - 1.0 > 3.0 * se)))
 
     @property
     def dof(self):
@@ -338,8 +339,8 @@ def window_noise(samples, windows, blocks=8):
       R_inf + C/m and is extrapolated to the whole window on every axis,
       R(n) = 1.875 R(n/8) - 0.875 R(n/16) (the more precise pair), or
       1.75 R(n/4) - 0.75 R(n/8) for short windows: larger for longer blocks is correlated
-      noise; when R(n/4) leaves the line of the first pair (noise correlated over much of
-      a window), a quadratic in 1/m through all three,
+      noise; when R(n/4) leaves the line of the first pair by 3 standard errors (noise
+      correlated over much of a window), a quadratic in 1/m through all three,
       R(n) = 2.1875 R(n/4) - 1.40625 R(n/8) + 0.21875 R(n/16).
 
     Vibration: when on some axis the Hann-tapered spectrum near 0 Hz is well below
@@ -400,9 +401,10 @@ def window_noise(samples, windows, blocks=8):
         fine = np.isfinite(r16) and abs(r8 - r16) > 2.0 * np.hypot(se8, se16)
         changing.append(fine or (np.isfinite(r4) and abs(r4 - r8) > 2.0 * np.hypot(se4, se8)))
         # R(n/4) off the line of R(n/16) and R(n/8): noise correlated over a good part of
-        # a window, where R still bends (on any axis, as above).
+        # a window, where R still bends (on any axis, as above; 3 standard errors, as the
+        # quadratic costs precision and three axes give a chance three tries).
         bend = r4 - (1.5 * r8 - 0.5 * r16)
-        bending.append(bool(np.isfinite(bend) and abs(bend) > 2.0 * np.sqrt(
+        bending.append(bool(np.isfinite(bend) and abs(bend) > 3.0 * np.sqrt(
             se4 ** 2 + (1.5 * se8) ** 2 + (0.5 * se16) ** 2)))
     for i, ((r16, se16), (r8, se8), (r4, se4)) in enumerate(pooled):
         if not (np.isfinite(r8) and np.isfinite(r4)) or r8 <= 0:
