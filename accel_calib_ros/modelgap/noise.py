@@ -42,6 +42,7 @@ class WindowNoise:
     :param taper: white-noise variance of a window mean over a plain mean's (1.5 for
         Hann means, 1 for plain ones); ``inflation`` includes it.
     :param spectrum_bins: periodogram bins pooled per axis for tapered means.
+    :param measured: (R(n/8), its standard error), each (3,): R as measured with 8 blocks.
     """
 
     inflation: np.ndarray
@@ -51,6 +52,7 @@ class WindowNoise:
     means: np.ndarray = None
     taper: float = 1.0
     spectrum_bins: list = None
+    measured: tuple = None
 
     def apply(self, windows):
         """Return the windows with the means the noise level describes (tapered or not)."""
@@ -61,14 +63,14 @@ class WindowNoise:
         """
         Tell whether some axis's noise is measurably correlated over many samples.
 
-        R above 1 (beyond three standard errors and 20 %) in a window: noise slower than
-        a sample, so noise slower than a window (flicker, AR noise, bias instability) is
-        to be expected too, and the window means may scatter more than R shows.
+        R(n/8) as measured (not extrapolated) above 1, beyond three standard errors and
+        20 %: noise slower than a sample, so noise slower than a window (flicker, AR
+        noise, bias instability) is to be expected too, and the window means may scatter
+        more than R shows.
         """
-        ratio = self.inflation / self.taper
-        se = self.relative_se * ratio
-        if np.ptp(self.inflation) == 0:
-            se = se / np.sqrt(3.0)          # one R shared by the axes (``_common``)
+        if self.measured is None:
+            return False
+        ratio, se = self.measured
         return bool(np.any((ratio > 1.2) & (ratio - 1.0 > 3.0 * se)))
 
     @property
@@ -339,8 +341,8 @@ def window_noise(samples, windows, blocks=8):
       R_inf + C/m and is extrapolated to the whole window on every axis,
       R(n) = 1.875 R(n/8) - 0.875 R(n/16) (the more precise pair), or
       1.75 R(n/4) - 0.75 R(n/8) for short windows: larger for longer blocks is correlated
-      noise; when R(n/4) leaves the line of the first pair by 3 standard errors (noise
-      correlated over much of a window), a quadratic in 1/m through all three,
+      noise; when R(n/4) leaves the line of the first pair (noise correlated over much of
+      a window), a quadratic in 1/m through all three,
       R(n) = 2.1875 R(n/4) - 1.40625 R(n/8) + 0.21875 R(n/16).
 
     Vibration: when on some axis the Hann-tapered spectrum near 0 Hz is well below
@@ -401,10 +403,9 @@ def window_noise(samples, windows, blocks=8):
         fine = np.isfinite(r16) and abs(r8 - r16) > 2.0 * np.hypot(se8, se16)
         changing.append(fine or (np.isfinite(r4) and abs(r4 - r8) > 2.0 * np.hypot(se4, se8)))
         # R(n/4) off the line of R(n/16) and R(n/8): noise correlated over a good part of
-        # a window, where R still bends (on any axis, as above; 3 standard errors, as the
-        # quadratic costs precision and three axes give a chance three tries).
+        # a window, where R still bends (on any axis, as above).
         bend = r4 - (1.5 * r8 - 0.5 * r16)
-        bending.append(bool(np.isfinite(bend) and abs(bend) > 3.0 * np.sqrt(
+        bending.append(bool(np.isfinite(bend) and abs(bend) > 2.0 * np.sqrt(
             se4 ** 2 + (1.5 * se8) ** 2 + (0.5 * se16) ** 2)))
     for i, ((r16, se16), (r8, se8), (r4, se4)) in enumerate(pooled):
         if not (np.isfinite(r8) and np.isfinite(r4)) or r8 <= 0:
@@ -433,9 +434,10 @@ def window_noise(samples, windows, blocks=8):
                             and rs < r8 - 3.0 * np.hypot(ses, se8))
         inflation[i] = max(value, 1e-3)
         rel[i] = se / inflation[i]
+    measured = (np.array([r[1][0] for r in pooled]), np.array([r[1][1] for r in pooled]))
     if not vibrating.any():
         inflation, rel = _common(inflation, rel)
-        return WindowNoise(inflation, rel, method, moving)
+        return WindowNoise(inflation, rel, method, moving, measured=measured)
     # Vibration: tapered means, and their noise from the spectrum below the vibration.
     means, factor = hann_means(samples, windows)
     taper = float(np.median(factor[np.asarray(tested)[keep]]))
@@ -450,7 +452,7 @@ def window_noise(samples, windows, blocks=8):
         bins.append(k)
     inflation, rel = _common(inflation, rel)
     return WindowNoise(inflation, rel, method, moving, means=means, taper=taper,
-                       spectrum_bins=bins)
+                       spectrum_bins=bins, measured=measured)
 
 
 def simulated_null_gaps(model, fit, c, rng, replicates):
