@@ -32,7 +32,7 @@ def modules():
 
 
 def imports(name, path, known):
-    """Return the package modules that module ``name`` imports (anywhere in it)."""
+    """Return the package modules that module ``name`` imports, anywhere in it."""
     with open(path, encoding='utf-8') as f:
         tree = ast.parse(f.read())
     package = name if path.endswith('__init__.py') else name.rsplit('.', 1)[0]
