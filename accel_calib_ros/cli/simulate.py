@@ -28,7 +28,9 @@ def add_arguments(p):
                    help='temperature, °C: one value, or START END for a ramp')
     p.add_argument('--effects', default='',
                    help='comma-separated extra effects: scale_nonlinearity, '
-                        'temperature_bias, temperature_scale, bias_drift')
+                        'temperature_bias, temperature_scale, bias_drift, temperature_lag '
+                        '(the offset follows a die temperature 1-5 min behind the recorded '
+                        'one), bias_random_walk')
     p.add_argument('--orthogonal', action='store_true',
                    help='no non-orthogonality (diagonal T, the GN model)')
     p.add_argument('--gravity', type=GRAVITY, default=G0, help='gravity, m/s²')
@@ -117,7 +119,7 @@ def run(args, out):
     rng = np.random.default_rng(args.seed)
     effects = [e.strip() for e in args.effects.split(',') if e.strip()]
     known = ('scale_nonlinearity', 'temperature_bias', 'temperature_scale', 'bias_drift',
-             'nonorthogonality')
+             'nonorthogonality', 'temperature_lag', 'bias_random_walk')
     for e in effects:
         if e not in known:
             raise UsageError(f'unknown effect {e!r}; choose from {", ".join(known)}')
@@ -202,4 +204,7 @@ def sensor_to_dict(sensor, gravity):
             'temp_ref_c': float(sensor.temp_ref), 'gravity_m_s2': float(gravity),
             'gyro_bias_rad_s': np.asarray(getattr(sensor, 'gyro_bias', np.zeros(3)),
                                           float).tolist(),
-            'gyro_noise_std_rad_s': np.asarray(sensor.gyro_noise_std, float).tolist()}
+            'gyro_noise_std_rad_s': np.asarray(sensor.gyro_noise_std, float).tolist(),
+            **({'thermal_lag_s': float(sensor.thermal_lag_s)} if sensor.thermal_lag_s else {}),
+            **({'bias_random_walk_m_s2_per_rt_s': sensor.bias_random_walk.tolist()}
+               if np.any(sensor.bias_random_walk) else {})}

@@ -7,7 +7,14 @@ The forward model, for true specific force ``a`` (m/s², body frame), temperatur
     s      = diag(1 + scale_tempco * (theta - temp_ref)) @ T @ a
     raw_i  = s_i + nonlinearity_i * s_i**2 / g0
              + bias_i + bias_tempco_i * (theta - temp_ref) + bias_drift_i * t
-             + noise, then quantised to the ADC step.
+             + w_i(t) + noise, then quantised to the ADC step.
+
+``theta`` is the die temperature: the reported temperature itself, or, with
+``thermal_lag_s`` > 0, its first-order lag (the die warms up minutes behind the
+temperature sensor). ``w(t)`` is a random walk of the offset (``bias_random_walk``,
+m/s² per √s), zero unless switched on. Both need the session's history, so they act
+in ``iter_session``/``simulate_session`` and ``simulate_static_windows``, not in
+``distort``.
 
 ``T`` is upper triangular (scale times non-orthogonality, Sun & Xu eq. 1-4).
 Each physical effect has its own field and is off when that field is zero, so
@@ -65,6 +72,9 @@ class SensorModel:
         (inf: no clipping).
     :param gyro_lsb: gyroscope ADC step, rad/s (0 disables quantisation).
     :param magnetometer: MagnetometerModel, or None for a sensor without one.
+    :param thermal_lag_s: time constant of the die temperature behind the reported one,
+        s (0: none): the temperature effects follow the lagged temperature.
+    :param bias_random_walk: (3,) random walk of the offset, m/s² per √s (0: none).
     """
 
     T: np.ndarray = field(default_factory=lambda: np.eye(3))
@@ -82,13 +92,16 @@ class SensorModel:
     gyro_full_scale: float = float('inf')
     gyro_lsb: float = 0.0
     magnetometer: Optional['MagnetometerModel'] = None
+    thermal_lag_s: float = 0.0
+    bias_random_walk: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def __post_init__(self):
         self.T = np.asarray(self.T, dtype=float).reshape(3, 3)
         self.gyro_T = np.asarray(self.gyro_T, dtype=float).reshape(3, 3)
         for name in ('bias', 'noise_std', 'nonlinearity', 'bias_tempco',
-                     'scale_tempco', 'bias_drift', 'gyro_noise_std'):
+                     'scale_tempco', 'bias_drift', 'gyro_noise_std', 'bias_random_walk'):
             setattr(self, name, _vec3(getattr(self, name)))
+        self.thermal_lag_s = float(self.thermal_lag_s)
 
     def with_effects(self, **fields):
         """Return a copy with some fields replaced (switch effects on or off)."""
@@ -114,9 +127,15 @@ class SensorModel:
         raw = raw + time[:, None] * self.bias_drift
         return raw
 
-    def measure(self, true_accel, rng, temp=None, t=None):
-        """Noisy, quantised raw reading (as ``distort`` plus noise and ADC step)."""
+    def measure(self, true_accel, rng, temp=None, t=None, offset=None):
+        """
+        Noisy, quantised raw reading (as ``distort`` plus noise and ADC step).
+
+        :param offset: (N, 3) extra offset before the noise (the random walk), m/s².
+        """
         raw = self.distort(true_accel, temp, t)
+        if offset is not None:
+            raw = raw + offset
         raw = raw + rng.standard_normal(raw.shape) * self.noise_std
         if self.lsb > 0:
             raw = np.round(raw / self.lsb) * self.lsb
@@ -133,8 +152,10 @@ def mpu9250_like(rng, rate_hz=100.0, effects=()):
     quantisation. Effects beyond the
     calibration model are off unless named in ``effects``: ``scale_nonlinearity``
     (±0.5 %), ``temperature_bias`` (±1.5 mg/°C), ``temperature_scale``
-    (±0.026 %/°C), ``bias_drift`` (±0.2 mg/min). ``nonorthogonality`` is always
-    on (it is part of T); pass ``orthogonal=True`` semantics by zeroing it yourself.
+    (±0.026 %/°C), ``bias_drift`` (±0.2 mg/min), ``temperature_lag`` (the offset's
+    ±1.5 mg/°C driven by a die temperature 1-5 minutes behind the reported one),
+    ``bias_random_walk`` (±0.05-0.2 mg/√s). ``nonorthogonality`` is always on (it is part
+    of T); pass ``orthogonal=True`` semantics by zeroing it yourself.
 
     :returns: SensorModel.
     """
@@ -162,10 +183,17 @@ def mpu9250_like(rng, rate_hz=100.0, effects=()):
         'bias_drift': ('bias_drift', signed(0.5e-3, 2e-3) * G0 / 60.0),
     }
     for name in effects:
-        if name == 'nonorthogonality':
+        if name in ('nonorthogonality', 'temperature_lag', 'bias_random_walk'):
             continue
         attr, value = magnitudes[name]
         setattr(model, attr, value)
+    # Drawn only when asked, after the others: seeded sessions without them keep their draws.
+    if 'temperature_lag' in effects:
+        if 'temperature_bias' not in effects:
+            model.bias_tempco = signed(0.5e-3, 1.5e-3) * G0
+        model.thermal_lag_s = float(rng.uniform(60.0, 300.0))
+    if 'bias_random_walk' in effects:
+        model.bias_random_walk = signed(0.05e-3, 0.2e-3) * G0
     return model
 
 
@@ -426,6 +454,8 @@ def iter_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=100.0,
         def temp_at(t):
             return start + (end - start) * t / max((total - 1) * dt, dt)
     up = np.array([0.0, 0.0, gravity])
+    die = _DieTemperature(getattr(sensor, 'thermal_lag_s', 0.0), dt)
+    walk = _RandomWalk(getattr(sensor, 'bias_random_walk', np.zeros(3)), dt)
     gyro_bias = np.asarray(getattr(sensor, 'gyro_bias', np.zeros(3)), float)  # raw = true + b
     gyro_noise = np.asarray(getattr(sensor, 'gyro_noise_std', 0.002), float)  # rad/s
     gyro_T = np.asarray(getattr(sensor, 'gyro_T', np.eye(3)), float)
@@ -505,7 +535,7 @@ def iter_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=100.0,
             if np.isfinite(full_scale):
                 np.clip(gyro, -full_scale, full_scale, out=gyro)
             temp = temp_at(t)
-            raw = sensor.measure(true_accel, rng, temp, t)
+            raw = sensor.measure(true_accel, rng, die(temp), t, walk(m, rng))
             pose = np.full(m, -1 if moving else k)
             field_body = raw_mag = None
             if mag is not None:
@@ -520,6 +550,42 @@ def iter_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=100.0,
         first += n
     if pieces:
         yield _join(pieces, directions, sensor, gravity, earth_field)
+
+
+class _DieTemperature:
+    """First-order lag of the reported temperature, sample by sample, across chunks."""
+
+    def __init__(self, tau, dt):
+        self.decay = float(np.exp(-dt / tau)) if tau > 0 else 0.0
+        self.state = None
+
+    def __call__(self, temp):
+        """Return the die temperature for the next samples of the reported one."""
+        if self.decay == 0.0:
+            return temp
+        from scipy import signal
+        if self.state is None:                 # in equilibrium at the start
+            self.state = float(temp[0])
+        a = self.decay
+        out, _ = signal.lfilter([1.0 - a], [1.0, -a], temp, zi=[a * self.state])
+        self.state = float(out[-1])
+        return out
+
+
+class _RandomWalk:
+    """Random walk of the offset, sample by sample, across chunks (0 at the start)."""
+
+    def __init__(self, k, dt):
+        self.step = np.asarray(k, float) * np.sqrt(dt)
+        self.state = np.zeros(3)
+
+    def __call__(self, m, rng):
+        """Return the offset (m, 3) for the next m samples, or None when switched off."""
+        if not np.any(self.step):
+            return None
+        path = self.state + np.cumsum(rng.standard_normal((m, 3)) * self.step, axis=0)
+        self.state = path[-1]
+        return path
 
 
 def _join(pieces, directions, sensor, gravity, earth_field=None):
@@ -615,17 +681,21 @@ def simulate_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=10
     return parts[0]
 
 
-def simulate_window_means(sensor, directions, n_samples, rng, gravity=G0, temp=None, t=None):
+def simulate_window_means(sensor, directions, n_samples, rng, gravity=G0, temp=None, t=None,
+                          offset=None):
     """
     Window means of static poses directly, without simulating every sample.
 
     :param directions: (N, 3) unit gravity directions.
     :param n_samples: (N,) samples averaged in each window.
-    :param temp: (N,) window temperatures, °C; ``t``: (N,) window mid times, s.
+    :param temp: (N,) window (die) temperatures, °C; ``t``: (N,) window mid times, s.
+    :param offset: (N, 3) extra offset of each window (a random walk), m/s², or None.
     :returns: (N, 3) mean raw readings, m/s² (noise std / sqrt(n); no quantisation).
     """
     directions = np.asarray(directions, float).reshape(-1, 3)
     raw = sensor.distort(gravity * directions, temp, t)
+    if offset is not None:
+        raw = raw + offset
     n = np.broadcast_to(np.asarray(n_samples, float), (len(directions),))
     return raw + rng.standard_normal(raw.shape) * sensor.noise_std / np.sqrt(n)[:, None]
 
@@ -636,8 +706,13 @@ DATASHEET = {
     'temperature_bias': 1.5e-3 * G0,       # m/s² per °C
     'temperature_scale': 2.6e-4,           # 1 per °C
     'bias_drift': 1e-3 * G0 / 60.0,        # m/s² per s (1 mg/min; not in the datasheet)
+    'temperature_lag': 1.5e-3 * G0,        # m/s² per °C of the die temperature
+    'bias_random_walk': 0.1e-3 * G0,       # m/s² per √s (not in the datasheet)
 }
 """MPU-9250 datasheet magnitude of each effect of the model-gap library."""
+
+THERMAL_LAG_S = 120.0
+"""Die temperature lag of ``with_datasheet_effect(..., 'temperature_lag')``, s."""
 
 
 def with_datasheet_effect(sensor, effect, rng, scale=1.0):
@@ -646,7 +721,9 @@ def with_datasheet_effect(sensor, effect, rng, scale=1.0):
 
     The three axes get random signs and sizes of (1, 0.75, 0.5) x the magnitude. For
     ``nonorthogonality`` T becomes diagonal plus the hidden off-diagonal terms, so a
-    6-parameter (gn) baseline lacks exactly that effect.
+    6-parameter (gn) baseline lacks exactly that effect. ``temperature_lag`` is the
+    offset's temperature coefficient driven by a die temperature ``THERMAL_LAG_S`` behind
+    the reported one (set ``thermal_lag_s`` for another lag).
     """
     size = scale * DATASHEET[effect] * rng.choice([-1.0, 1.0], 3) * np.array([1.0, 0.75, 0.5])
     out = replace(sensor, T=sensor.T.copy())
@@ -655,8 +732,11 @@ def with_datasheet_effect(sensor, effect, rng, scale=1.0):
         out.T[np.triu_indices(3, 1)] = size
     else:
         attr = {'scale_nonlinearity': 'nonlinearity', 'temperature_bias': 'bias_tempco',
-                'temperature_scale': 'scale_tempco', 'bias_drift': 'bias_drift'}[effect]
+                'temperature_scale': 'scale_tempco', 'bias_drift': 'bias_drift',
+                'temperature_lag': 'bias_tempco', 'bias_random_walk': 'bias_random_walk'}[effect]
         setattr(out, attr, size)
+        if effect == 'temperature_lag':
+            out.thermal_lag_s = THERMAL_LAG_S
     return out
 
 
@@ -677,6 +757,19 @@ def simulate_static_windows(sensor, directions, rng, hold_s=3.5, count=250, grav
     temp = np.asarray(temperature(t), float) if callable(temperature) \
         else np.full(n, float(temperature))
     counts = np.full(n, int(count))
-    mean = simulate_window_means(sensor, directions, counts, rng, gravity, temp, t)
+    die = temp
+    lag = float(getattr(sensor, 'thermal_lag_s', 0.0))
+    if lag > 0 and callable(temperature):
+        # The die temperature: the reported one lagged, on a grid fine against tau.
+        dt = min(hold_s / 10.0, lag / 20.0)
+        fine = np.arange(0.0, t[-1] + dt, dt)
+        die = np.interp(t, fine, _DieTemperature(lag, dt)(
+            np.asarray(temperature(fine), float) * np.ones(len(fine))))
+    offset = None
+    k = np.asarray(getattr(sensor, 'bias_random_walk', np.zeros(3)), float)
+    if np.any(k):
+        steps = rng.standard_normal((n, 3)) * k * np.sqrt(np.diff(t, prepend=0.0))[:, None]
+        offset = np.cumsum(steps, axis=0)
+    mean = simulate_window_means(sensor, directions, counts, rng, gravity, die, t, offset)
     return StaticWindows(np.zeros(n, int), counts, mean, np.tile(sensor.noise_std, (n, 1)),
                          counts, t, temp)

@@ -48,10 +48,34 @@ class Effect:
     unit = ''
     variable = 'direction'
     """The session variable the effect's residual follows (a ``diagnose`` probe name)."""
+    searched = 0
+    """Parameters chosen by a search before the fit (a time constant): counted in tests."""
 
     def applicable(self, context, baseline):
         """Return '' when the session can show this effect, else the reason it cannot."""
         return ''
+
+    def bind(self, c):
+        """
+        Return the effect as it applies to one session (``model.Conditions``).
+
+        Most effects are the same in every session. One whose columns depend on the
+        session's history (a lagged temperature) or span (a smooth basis in time)
+        returns a copy bound to that history, so that it can then be evaluated at any
+        single condition (the worst case, a held-out window).
+        """
+        return self
+
+    def bindings(self, c):
+        """Return the session-bound versions to search over (one, unless a search is needed)."""
+        return [self.bind(c)]
+
+    def search(self, c, score):
+        """Return the session-bound version with the highest ``score(bound)``."""
+        options = self.bindings(c)
+        if len(options) == 1:
+            return options[0]
+        return max(options, key=score)
 
     def columns(self, accel, temp, time, gravity=G0):
         """
@@ -197,7 +221,190 @@ class BiasDrift(PerAxisEffect):
         return f'{60000 * value / gravity:+.3f} mg/min'
 
 
+def lagged(time, temp, tau):
+    """
+    Return a first-order lag of a temperature sampled at ``time``, same shape.
+
+    The temperature is taken as linear between the samples (window mid times); the
+    lagged one starts at the first temperature (in equilibrium) and follows
+    tau dθ_lag/dt = θ - θ_lag exactly on each linear piece:
+    θ_lag(t1) = θ1 - s tau + (θ_lag(t0) - θ0 + s tau) exp(-(t1 - t0) / tau), s the slope.
+
+    :param time: (N,) s, increasing. :param temp: (N,) °C. :param tau: time constant, s.
+    """
+    out = np.empty(len(temp))
+    out[0] = temp[0]
+    dt = np.diff(time)
+    decay = np.exp(-dt / tau)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        slope = np.where(dt > 0, np.diff(temp) / np.where(dt > 0, dt, 1.0), 0.0)
+    for k in range(1, len(temp)):
+        st = slope[k - 1] * tau
+        out[k] = temp[k] - st + (out[k - 1] - temp[k - 1] + st) * decay[k - 1]
+    return out
+
+
+class TemperatureLag(PerAxisEffect):
+    name = 'temperature_lag'
+    description = ('the zero-g offset follows the die temperature, which lags the reported '
+                   'temperature (first order, time constant tau)')
+    param_names = ('c_x', 'c_y', 'c_z')
+    unit = 'm/s² per °C (of the lagged temperature)'
+    variable = 'temperature'
+    searched = 1
+    label = 'offset drift with the lagged temperature'
+
+    TAU_GRID = 16
+    """Time constants tried (log-spaced) before the best one is refined."""
+
+    def __init__(self, tau=None, time=None, lag=None):
+        self.tau, self._time, self._lag = tau, time, lag
+
+    def applicable(self, context, baseline):
+        reason = TemperatureBias.applicable(self, context, baseline)
+        if reason:
+            return reason
+        span = context.get('time_span', 0.0)
+        return '' if span >= 60.0 else f'the session lasts only {span:.0f} s'
+
+    def tau_range(self, c):
+        """
+        Return the time constants worth trying in this session, s.
+
+        From twice the typical spacing of the windows (a shorter lag cannot be resolved;
+        at least 1 % of the session) to the session's span (a longer one turns the
+        temperature's history into a slow integral that a drift imitates).
+        """
+        span = max(c.time_span, 1.0)
+        spacing = float(np.median(np.diff(np.sort(c.time)))) if len(c.time) > 1 else 0.0
+        low = min(max(0.01 * span, 2.0 * spacing), 0.5 * span)
+        return np.geomspace(low, span, self.TAU_GRID)
+
+    def bind(self, c, tau=None):
+        """Return the effect bound to this session's temperature history with time constant tau."""
+        tau = float(np.median(self.tau_range(c))) if tau is None else float(tau)
+        order = np.argsort(c.time, kind='stable')
+        time, temp = c.time[order], c.temp[order]
+        lag = lagged(time, temp, tau)
+        return TemperatureLag(tau, time, lag - lag.mean())
+
+    def bindings(self, c):
+        return [self.bind(c, tau) for tau in self.tau_range(c)]
+
+    def search(self, c, score):
+        """Return the binding whose tau scores best: the grid, then refined between neighbours."""
+        from scipy import optimize
+        grid = self.tau_range(c)
+        scores = [score(self.bind(c, tau)) for tau in grid]
+        k = int(np.argmax(scores))
+        low, high = np.log(grid[max(k - 1, 0)]), np.log(grid[min(k + 1, len(grid) - 1)])
+        best = optimize.minimize_scalar(lambda v: -score(self.bind(c, np.exp(v))),
+                                        bounds=(low, high), method='bounded',
+                                        options={'xatol': 0.02})
+        tau = np.exp(best.x) if -best.fun > scores[k] else grid[k]
+        return self.bind(c, tau)
+
+    def columns(self, accel, temp, time, gravity=G0):
+        if self._time is None:
+            raise ValueError('temperature_lag needs a session: use bind(conditions, tau)')
+        value = np.interp(time, self._time, self._lag)
+        return _per_axis(np.repeat(value[:, None], 3, axis=1))
+
+    def axis_text(self, value, gravity):
+        return f'{1000 * value / gravity:+.3f} mg/°C'
+
+    def magnitude(self, params, gravity=G0, sensitivity=(1.0, 1.0, 1.0)):
+        return (super().magnitude(params, gravity, sensitivity)
+                + f'; the die lags the reported temperature by tau = {self.tau:.3g} s')
+
+
+class BiasRandomWalk(Effect):
+    name = 'bias_random_walk'
+    description = ('the zero-g offset wanders with time (a smooth random walk, not a straight '
+                   'line and not with temperature)')
+    unit = 'm/s²'
+    variable = 'time'
+
+    def __init__(self, degree=None, start=0.0, span=1.0):
+        self.degree, self.start, self.span = degree, start, span
+
+    @property
+    def param_names(self):
+        k = self.degree or 0
+        return tuple(f'o_{axis}_{j}' for axis in 'xyz' for j in range(1, k + 1))
+
+    MAX_DEGREE = 4
+    """Most smooth terms per axis: they hold 87 % of a random walk's variance about its mean
+    (its cosine coefficients fall like 1/k); a dependence with more structure (a cycle, a
+    step) is left to the time probe and the step alternative."""
+
+    @classmethod
+    def degrees_for(cls, windows):
+        """Return the numbers of smooth terms per axis to try in a session (2 to 4)."""
+        return range(2, int(min(cls.MAX_DEGREE, max(2, (windows - 12) // 6))) + 1)
+
+    def applicable(self, context, baseline):
+        span = context.get('time_span', 0.0)
+        if span < 60.0:
+            return f'the session lasts only {span:.0f} s'
+        windows = context.get('windows', 0)
+        return '' if windows >= 30 else f'{windows} windows are too few to follow a wander'
+
+    def bind(self, c, degree=2):
+        return BiasRandomWalk(degree, float(np.min(c.time)), float(max(np.ptp(c.time), 1e-9)))
+
+    def bindings(self, c):
+        return [self.bind(c, d) for d in self.degrees_for(len(c.time))]
+
+    def search(self, c, score):
+        """Return the binding with the best BIC: a random walk is as rough as the data show."""
+        n = len(c.time)
+        return max(self.bindings(c), key=lambda b: score(b) - len(b.param_names) * np.log(n))
+
+    def basis(self, time):
+        """Return cos(k pi u), k = 1..degree, u the time scaled to [0, 1] over the session."""
+        u = np.clip((np.asarray(time, float) - self.start) / self.span, 0.0, 1.0)
+        return np.cos(np.pi * np.arange(1, self.degree + 1)[None, :] * u[:, None])
+
+    def columns(self, accel, temp, time, gravity=G0):
+        if self.degree is None:
+            raise ValueError('bias_random_walk needs a session: use bind(conditions)')
+        phi = self.basis(time)
+        k = self.degree
+        cols = np.zeros((len(time), 3, 3 * k))
+        for i in range(3):
+            cols[:, i, i * k:(i + 1) * k] = phi
+        return cols
+
+    def wander(self, params, gravity=G0, sensitivity=(1.0, 1.0, 1.0), points=200):
+        """Return the offset wander over the session, (points, 3), in g per axis."""
+        phi = self.basis(self.start + self.span * np.linspace(0.0, 1.0, points))
+        coef = np.asarray(params, float).reshape(3, self.degree)
+        path = phi @ coef.T / np.asarray(sensitivity)
+        return (path - path.mean(axis=0)) / gravity
+
+    def magnitude(self, params, gravity=G0, sensitivity=(1.0, 1.0, 1.0)):
+        path = self.wander(params, gravity, sensitivity)
+        rms = np.sqrt(np.mean(path ** 2, axis=0))
+        # A random walk of K per sqrt(s) wanders K sqrt(T / 6) RMS about its mean over T.
+        k = rms / np.sqrt(self.span / 6.0)
+        return ('offset wander ' + ', '.join(
+            f'{axis} {1000 * r:.3f} mg RMS' for axis, r in zip('xyz', rms))
+            + ' over the session; as a random walk about '
+            + ', '.join(f'{1000 * v:.3g}' for v in k) + ' mg/√s')
+
+
 EFFECTS = {effect.name: effect for effect in (
     Nonorthogonality(), ScaleNonlinearity(), TemperatureBias(), TemperatureScale(),
-    BiasDrift())}
+    BiasDrift(), TemperatureLag(), BiasRandomWalk())}
 """The effect library, by spec name."""
+
+
+def effect_of(entry):
+    """Return the Effect for a library name or a (session-bound) Effect."""
+    return EFFECTS[entry] if isinstance(entry, str) else entry
+
+
+def name_of(entry):
+    """Return the library name of a name or an Effect."""
+    return entry if isinstance(entry, str) else entry.name

@@ -9,7 +9,7 @@ what the residuals follow.
 
 import numpy as np
 
-from .effects import EFFECTS, G0
+from .effects import effect_of, G0, name_of
 
 
 def where_variables(c, directions):
@@ -89,8 +89,9 @@ def visibility(model, fit, c, name):
     T = model.split(fit.x)[0]
     # The change of the reading per unit parameter in the true frame (T^-1 columns),
     # in units of each window's noise.
+    effect = model.objects.get(name_of(name)) or effect_of(name)
     cols = np.einsum('ij,njk->nik', np.linalg.inv(T),
-                     EFFECTS[name].columns(a, c.temp, c.time, c.gravity))
+                     effect.columns(a, c.temp, c.time, c.gravity))
     _, s = model.residual_parts(fit.x, c)
     raw = np.linalg.norm(np.linalg.norm(cols, axis=1) / s[:, None], axis=0)
     if fit.jac is not None and fit.jac.shape[1]:
@@ -126,11 +127,11 @@ def effect_worst_case_mg(model, x, c, name, params):
     if len(conds) > 60:
         conds = conds[np.linspace(0, len(conds) - 1, 60).round().astype(int)]
     T_inv = np.linalg.inv(T)
+    effect = model.objects.get(name_of(name)) or effect_of(name)
     worst = 0.0
     for temp, time in conds:
         n = len(dirs)
-        cols = EFFECTS[name].columns(c.gravity * dirs, np.full(n, temp), np.full(n, time),
-                                     c.gravity)
+        cols = effect.columns(c.gravity * dirs, np.full(n, temp), np.full(n, time), c.gravity)
         err = (cols @ np.asarray(params, float)) @ T_inv.T
         worst = max(worst, float(np.max(np.linalg.norm(err, axis=1))))
     return 1000.0 * worst / G0
@@ -156,12 +157,22 @@ def predicted_accuracy_mg(model, fit):
 
 
 def separation_advice(a, b, c):
+    """Return what to record so that two confounded effects can be told apart."""
     pair = {a, b}
-    if 'bias_drift' in pair and pair & {'temperature_bias', 'temperature_scale'}:
-        r = float(np.corrcoef(c.temp, c.time)[0, 1]) if c.temp_span > 0 else 0.0
+    thermal = pair & {'temperature_bias', 'temperature_scale', 'temperature_lag'}
+    r = float(np.corrcoef(c.temp, c.time)[0, 1]) if c.temp_span > 0 else 0.0
+    if pair & {'bias_drift', 'bias_random_walk'} and thermal and ('bias_random_walk' in pair
+                                                                  or abs(r) < 0.9):
+        return ('the temperature follows a smooth curve in time, which a wandering offset can '
+                'follow too; let the temperature go up and down more than once, or hold it '
+                'steady for a while, so the two separate')
+    if 'bias_drift' in pair and thermal:
         return (f'temperature and time move together in this session (r = {r:.2f}); hold '
                 'the temperature steady for a while, or let it fall, so the two separate')
-    if pair == {'temperature_bias', 'temperature_scale'}:
+    if 'temperature_scale' in pair and thermal - {'temperature_scale'}:
         return ('record poses with each axis both up and down at every temperature, so an '
                 'offset and a scale change look different')
+    if pair == {'temperature_bias', 'temperature_lag'}:
+        return ('change the temperature faster than the die follows it (a step, or warm-up '
+                'and cool-down), or hold each temperature until the die settles')
     return 'record more poses spread over the sphere (each axis up, down and sideways)'

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize
 
-from .effects import EFFECTS
+from .effects import effect_of, name_of
 
 
 @dataclass
@@ -37,10 +37,17 @@ class Model:
     """Baseline calibration plus a list of effects, fitted by least squares."""
 
     def __init__(self, baseline, effects):
+        """
+        Make the model of a baseline and effects.
+
+        :param baseline: 'ml' or 'gn'.
+        :param effects: library names or session-bound Effects (``Effect.bind``).
+        """
         self.baseline = baseline
         self.effects = list(effects)
+        self.objects = {name_of(e): effect_of(e) for e in self.effects}
         self.n_base = 9 if baseline == 'ml' else 6
-        self.sizes = [len(EFFECTS[name].param_names) for name in self.effects]
+        self.sizes = [len(effect_of(e).param_names) for e in self.effects]
 
     @property
     def n_params(self):
@@ -56,8 +63,8 @@ class Model:
             T[np.diag_indices(3)] = x[:3]
             bias = x[3:6]
         params, k = {}, self.n_base
-        for name, size in zip(self.effects, self.sizes):
-            params[name] = x[k:k + size]
+        for entry, size in zip(self.effects, self.sizes):
+            params[name_of(entry)] = x[k:k + size]
             k += size
         return T, bias, params
 
@@ -70,7 +77,7 @@ class Model:
         T, bias, params = self.split(x)
         a = np.linalg.solve(T, (c.readings - bias).T).T
         for _ in range(2):          # the effects are small: two fixed-point passes
-            extra = sum((EFFECTS[n].apply(p, a, c.temp, c.time, c.gravity)
+            extra = sum((self.objects[n].apply(p, a, c.temp, c.time, c.gravity)
                          for n, p in params.items()), np.zeros_like(a))
             a = np.linalg.solve(T, (c.readings - bias - extra).T).T
         return a
@@ -99,7 +106,7 @@ class Model:
         a = c.gravity * directions
         raw = a @ T.T + bias
         for name, p in params.items():
-            raw = raw + EFFECTS[name].apply(p, a, c.temp, c.time, c.gravity)
+            raw = raw + self.objects[name].apply(p, a, c.temp, c.time, c.gravity)
         return raw
 
     def fit(self, c, start):
@@ -117,6 +124,9 @@ class Model:
         """
         Return d(normalised residual)/d(params of effect ``name``) at ``x``, shape (N, k).
 
+        ``name``: a library name or a session-bound Effect (a model effect's own binding
+        is used when it is in the model).
+
         Evaluated whether or not the effect is in the model (zero parameters if not):
         the change of |a| per unit parameter is -n^T T^-1 columns, n = a/|a|.
         """
@@ -125,7 +135,8 @@ class Model:
         norm = np.linalg.norm(a, axis=1)
         along = np.linalg.solve(T.T, (a / norm[:, None]).T).T
         s = np.sqrt(np.sum((along * c.sigma) ** 2, axis=1))
-        cols = EFFECTS[name].columns(a, c.temp, c.time, c.gravity)
+        effect = self.objects.get(name_of(name)) or effect_of(name)
+        cols = effect.columns(a, c.temp, c.time, c.gravity)
         return -np.einsum('ni,nik->nk', along, cols) / s[:, None]
 
 
