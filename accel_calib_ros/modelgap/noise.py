@@ -361,20 +361,23 @@ def window_noise(samples, windows, blocks=8):
     :returns: WindowNoise ('assumed white', unit inflation, when no window is long enough).
     """
     half = blocks // 2
-    short, long_, finest, spectra, tested = [], [], [], [], []
+    short, long_, finest, spectra, tested, wanders = [], [], [], [], [], []
     for w, (a, b) in enumerate(zip(windows.start, windows.stop)):
         if (b - a) // blocks < 8:
             continue
         tested.append(w)
         x = samples.accel[a:b]
         x = x - x.mean(axis=0)
+        ramp = np.linspace(-1.0, 1.0, len(x))[:, None]
+        detrended = x - ramp * (ramp * x).sum(axis=0) / (ramp ** 2).sum()
+        # Motion is judged without the window's linear ramp: a long rest under a drifting
+        # bias is still a pose (and the best evidence on the drift), not a move.
+        wanders.append(_batch_ratios(detrended, blocks, 2))
         removed = 1
         if samples.temp is not None and np.ptp(samples.temp[a:b]) > RAMP_TEMP_C:
             # The temperature moved inside the window: its ramp is the model's business.
             # (Removing a ramp also removes some slow noise, so only when needed.)
-            ramp = np.linspace(-1.0, 1.0, len(x))[:, None]
-            x = x - ramp * (ramp * x).sum(axis=0) / (ramp ** 2).sum()
-            removed = 2
+            x, removed = detrended, 2
         spectra.append(_low_frequency_spectrum(x))
         finest.append(_batch_ratios(x, 2 * blocks, removed) if (b - a) // (2 * blocks) >= 8
                       else np.full(3, np.nan))
@@ -384,10 +387,10 @@ def window_noise(samples, windows, blocks=8):
     moving = np.zeros(len(windows), bool)
     if len(short) < 3:
         return WindowNoise(inflation, rel, ['assumed white'] * 3, moving)
-    short, long_ = np.asarray(short), np.asarray(long_)
-    level = np.nanmedian(short, axis=0)
+    short, long_, wanders = np.asarray(short), np.asarray(long_), np.asarray(wanders)
+    level = np.nanmedian(wanders, axis=0)
     with np.errstate(invalid='ignore', divide='ignore'):
-        wander = np.nanmax(short / np.where(level > 0, level, np.nan), axis=1)
+        wander = np.nanmax(wanders / np.where(level > 0, level, np.nan), axis=1)
     moving[np.asarray(tested)[wander > WANDER_FACTOR]] = True
     keep = ~(wander > WANDER_FACTOR)
     short, long_, spectra = short[keep], long_[keep], np.asarray(spectra)[keep]

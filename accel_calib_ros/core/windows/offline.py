@@ -182,6 +182,8 @@ VIBRATION_CUTOFF_HZ = 5.0
 """Low-pass corner of the vibration-robust pass (well below vibration, above a pose change)."""
 VIBRATION_GAIN = 1.25
 """The low-passed pass is kept when its windows hold this much more still time."""
+MERGED_POSES_DEG = 10.0
+"""A plain window holding low-passed windows this far apart in direction merged poses."""
 
 
 def detect_static_windows(samples, window_s=DEFAULTS['window_s'],
@@ -199,7 +201,9 @@ def detect_static_windows(samples, window_s=DEFAULTS['window_s'],
     runs on a zero-phase low-passed copy (block means to about 100 Hz, then a centred
     moving mean over 1 / (2 ``VIBRATION_CUTOFF_HZ``), twice); its windows are kept only
     when they hold more than ``VIBRATION_GAIN`` times the still time of the plain pass
-    (vibration hid the holds), so a hand-held or table-still session keeps the plain
+    (vibration hid the holds) or when a plain window holds low-passed windows whose
+    directions differ by more than ``MERGED_POSES_DEG`` (vibration hid the moves: poses
+    merged into one window), so a hand-held or table-still session keeps the plain
     windows, which the streaming detector of the node reproduces. Window means and
     scatters always come from the raw samples.
 
@@ -223,10 +227,24 @@ def detect_static_windows(samples, window_s=DEFAULTS['window_s'],
         low = _low_passed_mask(samples, window_s, threshold_factor, floor_quantile)
         if low is not None:
             robust = _windows_of_mask(*low, *settings)
-            if robust.count.sum() > VIBRATION_GAIN * windows.count.sum():
+            if robust.count.sum() > VIBRATION_GAIN * windows.count.sum() \
+                    or _merged_poses(windows, robust):
                 robust.low_passed = True
                 return robust
     return windows
+
+
+def _merged_poses(plain, robust):
+    """Tell whether a plain window spans low-passed windows of different directions."""
+    if not len(robust):
+        return False
+    u = robust.mean / np.maximum(np.linalg.norm(robust.mean, axis=1, keepdims=True), 1e-300)
+    cos_min = np.cos(np.radians(MERGED_POSES_DEG))
+    for a, b in zip(plain.start, plain.stop):
+        inside = u[(robust.start >= a) & (robust.stop <= b)]
+        if len(inside) > 1 and np.min(inside @ inside.T) < cos_min:
+            return True
+    return False
 
 
 def _low_passed_mask(samples, window_s, threshold_factor, floor_quantile):
