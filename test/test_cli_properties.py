@@ -77,7 +77,7 @@ def test_property_simulate_options(small_session, name, value):
     argv = ['simulate', '-o', output, '--poses', '3', '--hold', '0.3', '--move', '0.2',
             '--rate', '50']
     argv += [name, value] if not value.startswith('-') else [f'{name}={value}']
-    if name == '--poses' and value.strip().isdigit() and int(value) > 50:
+    if name == '--poses' and value.strip().isdecimal() and int(value) > 50:
         argv += ['--hold', '0.02', '--move', '0.02']       # keep a valid huge count quick
     code, out, err = _run(argv)
     _check(code, out, err)
