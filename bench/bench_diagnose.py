@@ -407,9 +407,9 @@ def real():
                 continue
             print('  ' + result.text().replace('\n', '\n  '))
             noise = result.noise()
-            print(f'  noise inflation {noise["inflation"]:.2f}, density '
-                  + ', '.join(f'{v:.0f}' for v in noise['density_ug_per_sqrt_hz'])
-                  + ' µg/√Hz')
+            print(f'  noise inflation {noise["inflation"]:.2f}, density N '
+                  + ', '.join(f'{v:.0f}' for v in noise['noise_density_ug_rthz'])
+                  + ' µg/√Hz (Allan N)')
             if result.missing_effects:
                 try:
                     check = held_out_check(windows, result)

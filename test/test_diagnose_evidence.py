@@ -344,3 +344,17 @@ def test_still_drift_needs_a_window():
     windows = windows_of(mpu9250_like(rng), rng)
     session = simulate_session(mpu9250_like(rng), random_directions(3, rng), rng)
     assert still_drift(session.samples, windows.select(np.zeros(len(windows), bool))) is None
+
+
+@pytest.mark.parametrize('first, second', [('temperature_bias', 'scale_nonlinearity'),
+                                           ('temperature_bias', 'bias_drift')])
+def test_a_second_missing_effect_is_not_hidden_by_the_first(first, second):
+    # Regression: the practical threshold was fit's predicted accuracy inflated by the
+    # baseline's misfit (chi²/dof): the first missing effect raised it to about 9 mg and
+    # hid the second. The threshold is the accuracy the noise allows.
+    rng = np.random.default_rng(11)
+    sensor = with_datasheet_effect(with_datasheet_effect(mpu9250_like(rng), first, rng),
+                                   second, rng)
+    result = diagnose_windows(windows_of(sensor, rng))
+    assert set(result.missing_effects) == {first, second}, result.text()
+    assert result.threshold_mg < 2.0 < result.predicted_accuracy_mg

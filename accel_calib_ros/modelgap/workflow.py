@@ -111,9 +111,9 @@ def _search(windows, baseline, gravity, rate_hz, noise, min_effect_mg, max_steps
     c = conditions_from_windows(windows, gravity, noise.inflation)
     start_cal = calibrate(c.readings, gravity, baseline, windows.count.astype(float))
     model, fit = fit_model(baseline, [], c, model_start(baseline, start_cal))
-    accuracy = _fit_accuracy_mg(windows, gravity, baseline, rate_hz)
+    accuracy, noise_only = _fit_accuracy_mg(windows, gravity, baseline, rate_hz)
     threshold = (float(min_effect_mg) if min_effect_mg is not None
-                 else max(MIN_EFFECT_MG, accuracy if np.isfinite(accuracy) else 0.0))
+                 else max(MIN_EFFECT_MG, noise_only if np.isfinite(noise_only) else 0.0))
     has_temp = bool(np.all(np.isfinite(np.asarray(windows.temp, float))))
     context = {'temp_span': c.temp_span, 'time_span': c.time_span, 'windows': len(windows),
                'has_temp': has_temp}
@@ -192,22 +192,31 @@ def _search(windows, baseline, gravity, rate_hz, noise, min_effect_mg, max_steps
 
 def _fit_accuracy_mg(windows, gravity, baseline, rate_hz):
     """
-    Return the predicted accuracy ``accel-calib fit`` reports for these windows, mg.
+    Return fit's predicted accuracy for these windows and the same before its inflation, mg.
+
+    The first is what ``accel-calib fit`` reports; the second, without the inflation by
+    the residual χ²/dof, is the practical threshold.
 
     ``core.accel.calibration.calibrate`` with fit's weights (samples per window, capped
     at ``MAX_WEIGHT_S`` of data when the rate is known) and noise. For a ``gn`` baseline
     the share fit charges for the cross-axis terms gn leaves out is not counted: those
     terms are what this check looks for (``nonorthogonality``), so they must not raise
-    the practical threshold.
+    the practical threshold. Nor does the threshold carry fit's inflation by the
+    residual χ²/dof: a misfit is what this check explains, and a first missing effect
+    must not hide a second one behind an inflated threshold.
     """
     from ..core.acceptance import estimation_accuracy
     weights = windows.weights(MAX_WEIGHT_S, rate_hz)
     try:
         cal = calibrate(windows.mean, gravity, baseline, weights, noise_std=windows.noise_std)
     except (CalibrationError, np.linalg.LinAlgError, ValueError):
-        return float('nan')
+        return float('nan'), float('nan')
     value = estimation_accuracy(cal)
-    return float(value) * 1000.0 / G0 if value is not None else float('nan')
+    if value is None:
+        return float('nan'), float('nan')
+    inflation = getattr(getattr(cal, 'information', None), 'inflation', 1.0) or 1.0
+    mg = float(value) * 1000.0 / G0
+    return mg, mg / float(np.sqrt(max(inflation, 1.0)))
 
 
 def _try(name, model, fit, c, threshold, bound=None):
