@@ -117,31 +117,3 @@ def worst_faces(T, covariance, gravity=9.80665, limit=None):
     order = np.argsort(-err)
     return [(FACE_NAMES[k], FACE_DIRECTIONS[k], float(err[k])) for k in order
             if limit is None or err[k] > limit]
-
-
-def fisher_information(T, bias, readings, weights=None, radius=9.80665):
-    """
-    Fisher information (9, 9) of (T upper, bias) per unit noise variance (ML model).
-
-    The same information as ``core.ml.cramer_rao_bound`` (which returns its inverse),
-    evaluated at the fitted parameters with the directions the fit implies for each
-    reading, so that it exists for every method (ellipsoid and GN included): for each
-    observation ``g gᵀ w`` with ``g = Gᵀ n``, ``G`` the (3, 9) Jacobian of the ideal
-    reading ``T (radius u) + b`` and ``n`` the unit normal of the ellipsoid there.
-
-    :param readings: (N, 3) raw observations, reading units.
-    :param weights: (N,) relative weights (noise variance sigma² / w_k).
-    :returns: (F (9, 9), directions u (N, 3)).
-    """
-    T = np.asarray(T, dtype=float).reshape(3, 3)
-    y = np.asarray(readings, dtype=float).reshape(-1, 3)
-    w = np.ones(len(y)) if weights is None else np.asarray(weights, dtype=float).reshape(-1)
-    x = np.linalg.solve(T, (y - np.asarray(bias, float)).T).T
-    u = x / np.maximum(np.linalg.norm(x, axis=1, keepdims=True), 1e-300)
-    normal = np.linalg.solve(T.T, u.T).T
-    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
-    g = np.zeros((len(y), 9))
-    for k, (i, j) in enumerate(zip(_ROWS, _COLS)):
-        g[:, k] = normal[:, i] * radius * u[:, j]
-    g[:, 6:] = normal
-    return np.einsum('ni,nj,n->ij', g, g, w), u

@@ -218,20 +218,6 @@ def information(readings, T, bias, gravity=9.80665, method='ml', weights=None,
     return info
 
 
-def information_of_directions(directions, gravity=9.80665, method='ml'):
-    """
-    Return the information of windows of equal weight at ``directions``, ideal sensor.
-
-    For advice before any fit (unit variance: only the ranking of poses matters).
-
-    :param directions: (N, 3) gravity directions (any length > 0).
-    """
-    u = np.asarray(directions, float).reshape(-1, 3)
-    u = u / np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
-    return Information(np.eye(3), np.zeros(3), float(gravity), method, u,
-                       fisher_rows(np.eye(3), u, gravity), np.ones(len(u)))
-
-
 @dataclass
 class CrossAxis:
     """

@@ -137,25 +137,6 @@ def effect_worst_case_mg(model, x, c, name, params):
     return 1000.0 * worst / G0
 
 
-def predicted_accuracy_mg(model, fit):
-    """
-    Return the baseline fit's predicted accuracy, mg (``core.accuracy``, spec section 5).
-
-    The covariance (J^T J)^-1 of the baseline parameters (J: Jacobian of the
-    noise-normalised residuals) in the (T upper row-major, bias) order; a ``gn``
-    baseline's diagonal T takes the diagonal places (the rest fixed at zero).
-    """
-    from ..core.accuracy import predicted_accuracy
-    jac = fit.jac[:, :model.n_base]
-    cov = np.linalg.pinv(jac.T @ jac)
-    full = np.zeros((9, 9))
-    index = np.arange(9) if model.baseline == 'ml' else np.array([0, 3, 5, 6, 7, 8])
-    full[np.ix_(index, index)] = cov
-    T = model.split(fit.x)[0]
-    value = predicted_accuracy(T, full, G0)
-    return 1000.0 * value / G0 if np.isfinite(value) else float('nan')
-
-
 def separation_advice(a, b, c):
     """Return what to record so that two confounded effects can be told apart."""
     pair = {a, b}
