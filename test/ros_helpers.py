@@ -7,10 +7,13 @@ Reusable helpers for tests that run nodes as subprocesses on real rclpy over DDS
 - :class:`Processes`: starts both kinds and stops everything left (use it in a
   fixture's ``finally``).
 - :class:`Collector`: an in-process node in its own Context that records messages.
+- :func:`nodes_in_a_context`: build nodes in-process in their own Context (never spun),
+  destroyed at the end.
 
 Every wait has a timeout; the environment (ROS_DOMAIN_ID set by conftest) is inherited.
 """
 
+import contextlib
 import os
 import select
 import signal
@@ -21,6 +24,7 @@ import time
 
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
 
 STOP_TIMEOUT_S = 10.0
@@ -232,3 +236,28 @@ class Collector:
 
     def __exit__(self, *exc):
         self.close()
+
+
+@contextlib.contextmanager
+def nodes_in_a_context(**defaults):
+    """
+    Yield ``build(cls, **params)``: nodes in their own Context, destroyed at the end.
+
+    The nodes are never spun: a test drives their callbacks. ``defaults`` are parameters
+    every node gets unless ``params`` names them.
+    """
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    made = []
+
+    def build(cls, **params):
+        params = {**defaults, **params}
+        made.append(cls(context=context, parameter_overrides=[
+            Parameter(k, value=v) for k, v in params.items()]))
+        return made[-1]
+    try:
+        yield build
+    finally:
+        for node in made:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)

@@ -11,6 +11,7 @@ time into a best-effort queue): refusals leave the file byte-for-byte alone,
 bounded memory.
 """
 
+import functools
 import json
 import os
 import re
@@ -28,7 +29,7 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from ros_helpers import Collector, Processes, stop_node
+from ros_helpers import Collector, nodes_in_a_context, Processes, stop_node
 from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -180,19 +181,8 @@ def test_full_chain_device_to_corrected(tmp_path, procs, client):
 @pytest.fixture
 def node_in_process(tmp_path):
     """Make CalibrationNodes in their own context (never spun): the decision logic."""
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    made = []
-
-    def make(**params):
-        params.setdefault('calibration_file', str(tmp_path / 'calibration.yaml'))
-        made.append(CalibrationNode(context=context, parameter_overrides=[
-            Parameter(k, value=v) for k, v in params.items()]))
-        return made[-1]
-    yield make
-    for node in made:
-        node.destroy_node()
-    rclpy.try_shutdown(context=context)
+    with nodes_in_a_context(calibration_file=str(tmp_path / 'calibration.yaml')) as build:
+        yield functools.partial(build, CalibrationNode)
 
 
 CANDIDATE_FACES = np.vstack([np.eye(3), -np.eye(3)])

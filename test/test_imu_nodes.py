@@ -7,6 +7,7 @@ calibration node, fed a simulated session message by message through its callbac
 solves and reports all three sensors (and says which are absent).
 """
 
+import functools
 import json
 import random
 import time
@@ -23,6 +24,7 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from ros_helpers import nodes_in_a_context
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import Imu, MagneticField
 from std_srvs.srv import Trigger
@@ -196,20 +198,9 @@ def test_without_a_magnetometer_part_nothing_is_published_and_diagnostics_say_so
 @pytest.fixture
 def calibration_node(tmp_path):
     """Make CalibrationNodes in their own context (never spun)."""
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    made = []
-
-    def make(**params):
-        params.setdefault('calibration_file', str(tmp_path / 'calibration.yaml'))
-        params.setdefault('history', False)
-        made.append(CalibrationNode(context=context, parameter_overrides=[
-            Parameter(k, value=v) for k, v in params.items()]))
-        return made[-1]
-    yield make
-    for node in made:
-        node.destroy_node()
-    rclpy.try_shutdown(context=context)
+    with nodes_in_a_context(calibration_file=str(tmp_path / 'calibration.yaml'),
+                            history=False) as build:
+        yield functools.partial(build, CalibrationNode)
 
 
 def _stamp(msg, t):

@@ -9,8 +9,8 @@ from accel_calib_ros.nodes.calibration import CalibrationNode
 from accel_calib_ros.nodes.common import ParameterProblem
 import numpy as np
 import pytest
-import rclpy
 from rclpy.parameter import Parameter
+from ros_helpers import nodes_in_a_context
 from sensor_msgs.msg import Imu
 from std_srvs.srv import Trigger
 
@@ -20,18 +20,8 @@ pytestmark = pytest.mark.ros
 @pytest.fixture
 def make(tmp_path):
     """Build nodes of a class in their own context (never spun)."""
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    made = []
-
-    def build(cls, **params):
-        made.append(cls(context=context, parameter_overrides=[
-            Parameter(k, value=v) for k, v in params.items()]))
-        return made[-1]
-    yield build
-    for node in made:
-        node.destroy_node()
-    rclpy.try_shutdown(context=context)
+    with nodes_in_a_context() as build:
+        yield build
 
 
 def _imu(t, a, w):
