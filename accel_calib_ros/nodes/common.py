@@ -16,6 +16,7 @@ integer given for a floating-point parameter (a YAML ``2`` for ``2.0``) is accep
 import math
 import os
 import sys
+import time
 
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType, SetParametersResult)
@@ -347,6 +348,27 @@ def make_directory(path, logger=None):
         if logger is not None:
             logger.warning(f'cannot create {folder}: {err}')
         return False
+
+
+class Throttled:
+    """
+    Log a kind of message at most once per ``period_s`` (monotonic time), per node.
+
+    :param logger: the node's logger.
+    :param period_s: shortest time between two lines of the same kind, s.
+    """
+
+    def __init__(self, logger, period_s):
+        self.logger = logger
+        self.period_s = float(period_s)
+        self._last = {}
+
+    def __call__(self, kind, level, text):
+        """Log ``text`` with method ``level`` ('warning', 'error', ...) unless too soon."""
+        now = time.monotonic()
+        if now - self._last.get(kind, -math.inf) >= self.period_s:
+            self._last[kind] = now
+            getattr(self.logger, level)(text)
 
 
 def _spin_quietly(executor):

@@ -58,7 +58,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data,
 from sensor_msgs.msg import Imu, MagneticField, Temperature
 from std_srvs.srv import Trigger
 
-from .common import calibration_path, declare_parameters, Param, run
+from .common import calibration_path, declare_parameters, Param, run, Throttled
 from ..core.errors import CalibrationError, InputError
 from ..dataio.calibration_file import load_calibration, save_calibration
 
@@ -301,7 +301,7 @@ class CorrectionNode(Node):
         self._mag_samples = 0       # imu/mag messages received
         self._mag_published = 0
         self._dropped = 0           # messages not published: a non-finite field
-        self._last_warn = {}
+        self._warn = Throttled(self.get_logger(), WARN_PERIOD_S)
         self._temp_problem = ''
         self._rate_hz = None        # messages per second, measured at each diagnostics tick
         self._rate_mark = (None, 0)
@@ -517,13 +517,7 @@ class CorrectionNode(Node):
             return
         self._temp_problem = (f'temperature {temp:.1f} degC is outside the calibrated range '
                               f'{low:.1f} .. {high:.1f} degC: expect larger errors')
-        self._throttled_warning('temperature', self._temp_problem)
-
-    def _throttled_warning(self, key, text):
-        now = self.get_clock().now().nanoseconds * 1e-9
-        if now - self._last_warn.get(key, -math.inf) >= WARN_PERIOD_S:
-            self._last_warn[key] = now
-            self.get_logger().warning(text)
+        self._warn('temperature', 'warning', self._temp_problem)
 
     # -- level trim ------------------------------------------------------------------------
     def on_level(self, request, response):

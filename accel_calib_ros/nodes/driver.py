@@ -49,7 +49,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, MagneticField, Temperature
 import serial
 
-from .common import declare_parameters, Param, ParameterProblem, run
+from .common import declare_parameters, Param, ParameterProblem, run, Throttled
 from ..dataio.wire import (ACCEL_LSB_PER_G, AsciiLineParser, ClockMapper, Converter,
                            FRAME_V1_SIZE, FRAME_V2_SIZE, FrameParser, GYRO_LSB_PER_DPS,
                            MAG_AK8963, MagConverter, temp_counts_range, TEMP_FORMULAS)
@@ -161,17 +161,15 @@ class Mpu9250Driver(Node):
         self.published = 0
         self._last_error = ''
         self.reader_errors = 0
+        self._log_throttled = Throttled(self.get_logger(), READER_ERROR_LOG_S)
         self._last_reader_error = ''
-        self._reader_error_logged = -math.inf
         self.watchdog_s = p['watchdog_s']
         self.watchdog_reopens = 0
         self._watchdog_wait = self.watchdog_s
-        self._watchdog_logged = -math.inf
         self._opened_at = None          # monotonic time the port was (re)opened
         self._first_open_at = None
         self._last_frame_at = None      # monotonic time of the last valid frame
         self._jitter_warned = False
-        self._recoveries_logged = -math.inf
         self._diag_prev = (time.monotonic(), 0, 0, 0, 0, 0)
         self._stop = threading.Event()
         self._serial = None
@@ -250,12 +248,11 @@ class Mpu9250Driver(Node):
         log = self.get_logger()
         if old is not None and info.recoveries > old.recoveries and \
                 info[:8] == old[:8] and info.frame_version == old.frame_version:
-            now = time.monotonic()          # the firmware re-initialised the sensor
-            if now - self._recoveries_logged >= READER_ERROR_LOG_S:
-                self._recoveries_logged = now
-                log.warning(f'the firmware recovered the sensor ({info.recovery_text}); '
-                            f'{info.recoveries} recoveries, {info.i2c_errors} failed I2C '
-                            'transfers since it started (firmware_recoveries in /diagnostics)')
+            self._log_throttled(                # the firmware re-initialised the sensor
+                'recovery', 'warning',
+                f'the firmware recovered the sensor ({info.recovery_text}); '
+                f'{info.recoveries} recoveries, {info.i2c_errors} failed I2C transfers since it '
+                'started (firmware_recoveries in /diagnostics)')
             return
         text = (f'firmware {info.fw_version[0]}.{info.fw_version[1]}: {info.chip} '
                 f'(WHO_AM_I 0x{info.who_am_i:02x}), ±{info.accel_range_g} g, '
@@ -321,12 +318,10 @@ class Mpu9250Driver(Node):
             except Exception as err:    # noqa: B902 - nothing may stop the reader for good
                 self.reader_errors += 1
                 self._last_reader_error = f'{type(err).__name__}: {err}'
-                now = time.monotonic()
-                if now - self._reader_error_logged >= READER_ERROR_LOG_S:
-                    self._reader_error_logged = now
-                    self.get_logger().error(
-                        f'serial reader failed ({self._last_reader_error}); restarting it '
-                        f'(reader_errors {self.reader_errors} in /diagnostics)')
+                self._log_throttled(
+                    'reader', 'error',
+                    f'serial reader failed ({self._last_reader_error}); restarting it '
+                    f'(reader_errors {self.reader_errors} in /diagnostics)')
                 self.parser.reset()     # the partial frame and the sequence are suspect
                 self.clock_mapper.reset()
                 self._prev_stamp = None
@@ -345,12 +340,10 @@ class Mpu9250Driver(Node):
             elif self._serial is not None and self._watchdog_due():
                 self._drop_port()
                 self.watchdog_reopens += 1
-                now = time.monotonic()
-                if now - self._watchdog_logged >= READER_ERROR_LOG_S:
-                    self._watchdog_logged = now
-                    self.get_logger().warning(
-                        f'no valid frame for {now - self._silent_since():.1f} s: reopening '
-                        f'{self.port} (watchdog; {self.watchdog_reopens} so far)')
+                self._log_throttled(
+                    'watchdog', 'warning',
+                    f'no valid frame for {time.monotonic() - self._silent_since():.1f} s: '
+                    f'reopening {self.port} (watchdog; {self.watchdog_reopens} so far)')
                 self._watchdog_wait = min(self._watchdog_wait * 2.0,
                                           max(self.reconnect_max_s, self.watchdog_s))
                 ever_connected = False      # a reopen, not a reconnection after an outage
