@@ -8,9 +8,10 @@ judges a moving window):
   noise floor, and so is the angular rate's (a vibrating or hand-held sensor is not
   still);
 - the floor is a low quantile (``FLOOR_QUANTILE``) of the block deviations seen so far,
-  never above ``cap`` (three times the calibration's own per-sample noise, when the file
-  has it: a robot that is rarely still cannot raise its floor to the level of its
-  motion) nor below 10 µg;
+  never above ``cap`` (``CAP_FACTOR`` times the calibration's own per-sample noise, when
+  the file has it: a robot that is rarely still cannot raise its floor to the level of
+  its motion; loose enough for a sample rate or filter other than the calibration's)
+  nor below 10 µg;
 - the mean rate differs from the current bias estimate by less than ``max_rotation``;
 - the block mean has not jumped from the last block's by more than ``JUMP_SIGMA`` of
   their noise plus ``JUMP_FLOOR`` (a tilt or a bump between blocks).
@@ -34,6 +35,8 @@ JUMP_SIGMA = 6.0
 """A block mean further than this many standard errors from the last one has moved."""
 JUMP_FLOOR = 0.01
 """... plus this much, m/s² (1 mg: vibration makes block means scatter beyond white noise)."""
+CAP_FACTOR = 10.0
+"""The floor never exceeds this many times the calibration's per-sample noise."""
 MIN_ACCEL_FLOOR = 1e-4
 """Lowest accelerometer floor believed, m/s² (10 µg)."""
 GYRO_CAP = 0.02
@@ -77,7 +80,8 @@ class StillDetector:
     def __init__(self, factor=3.0, accel_noise=None, max_rotation=math.radians(5.0)):
         self.factor = float(factor)
         self.max_rotation = float(max_rotation)
-        cap = None if accel_noise is None or not accel_noise > 0 else 3.0 * float(accel_noise)
+        cap = None if accel_noise is None or not accel_noise > 0 \
+            else CAP_FACTOR * float(accel_noise)
         self.accel_floor = _Floor(cap, MIN_ACCEL_FLOOR)
         self.gyro_floor = _Floor(GYRO_CAP, MIN_GYRO_FLOOR)
         self._last = None
