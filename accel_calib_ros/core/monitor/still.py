@@ -10,7 +10,8 @@ judges a moving window):
 - the floor is a low quantile (``FLOOR_QUANTILE``) of the block deviations seen so far,
   never above ``cap`` (``CAP_FACTOR`` times the calibration's own per-sample noise, when
   the file has it: a robot that is rarely still cannot raise its floor to the level of
-  its motion; loose enough for a sample rate or filter other than the calibration's)
+  its motion; a stream up to about seven times noisier than the calibration's, another
+  rate or filter, still finds rest below the threshold of ``factor`` x the cap)
   nor below 10 µg;
 - the mean rate differs from the current bias estimate by less than ``max_rotation``;
 - the block mean has not jumped from the last block's by more than ``JUMP_SIGMA`` of
@@ -35,7 +36,7 @@ JUMP_SIGMA = 6.0
 """A block mean further than this many standard errors from the last one has moved."""
 JUMP_FLOOR = 0.01
 """... plus this much, m/s² (1 mg: vibration makes block means scatter beyond white noise)."""
-CAP_FACTOR = 10.0
+CAP_FACTOR = 3.0
 """The floor never exceeds this many times the calibration's per-sample noise."""
 MIN_ACCEL_FLOOR = 1e-4
 """Lowest accelerometer floor believed, m/s² (10 µg)."""
