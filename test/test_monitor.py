@@ -253,3 +253,16 @@ def test_a_robot_that_never_rests_has_no_verdict():
     mon.finish()
     assert mon.last_health is None and mon.health.result.level == 'unknown'
     assert mon.gyro.updates == 0
+
+
+def test_settings_change_in_place_keeps_the_estimate():
+    rng = np.random.default_rng(16)
+    rig = F.field_rig(rng)
+    ev = F.Events(gyro_change=0.5 * DEG * np.ones(3))
+    mon, _ = run_day(rig, [F.still(F.random_pose(rng, 10), 5.0)], ev, rng)
+    before = mon.gyro_bias.copy()
+    mon.apply_settings(mon.settings.replace(health_false_alarm=1e-6, gyro_bias_limit_deg_s=2.0,
+                                            threshold_factor=4.0))
+    np.testing.assert_array_equal(mon.gyro_bias, before)
+    assert mon.health.false_alarm == 1e-6 and mon.detector.factor == 4.0
+    assert mon.gyro.limit == pytest.approx(2.0 * DEG)

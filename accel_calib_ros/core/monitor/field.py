@@ -99,6 +99,26 @@ class FieldMonitor:
         self._carry = None              # samples of an unfinished block (feed)
         self.last_health = None         # the newest HealthResult (None: none yet)
 
+    def apply_settings(self, settings):
+        """
+        Take new settings in place, keeping the state (estimate, periods, orientations).
+
+        ``block_s`` and ``trim_s`` apply from the next block; a changed test level applies
+        from the next check.
+        """
+        s = self.settings = settings
+        self.detector.factor = float(s.threshold_factor)
+        self.detector.max_rotation = math.radians(s.max_rotation_deg_s)
+        tr = self.gyro
+        tr.min_still_s = float(s.gyro_min_still_s)
+        tr.limit = s.gyro_bias_limit_deg_s * DEG
+        tr.vertical_limit = s.gyro_vertical_limit_deg_s * DEG
+        h = self.health
+        h.false_alarm, h.allowance = float(s.health_false_alarm), s.health_allowance_mg * MG
+        h.min_still_s, h.memory_s = float(s.health_min_still_s), float(s.health_memory_s)
+        h.cos_cluster = math.cos(math.radians(s.health_cluster_deg))
+        h.margin_c = float(s.temperature_margin_c)
+
     # -- input -----------------------------------------------------------------------------
     @property
     def trim_blocks(self):
