@@ -71,7 +71,7 @@ def non_finite_file(path):
 def make_files(folder):
     """Write the adversarial data files; return a dict name -> path."""
     from accel_calib_ros.cli import main
-    from accel_calib_ros.core import simulate as sim
+    from accel_calib_ros.sim import sensor as sim
     sys.path.insert(0, os.path.join(os.path.dirname(__file__), '..', 'test'))
     import peer_data
     f = {}

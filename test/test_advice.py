@@ -3,11 +3,11 @@
 import json
 import math
 
-from accel_calib_ros.core.advice import (advise, CANDIDATE_NAMES, CANDIDATE_POSES,
-                                         pose_name, predicted_accuracy, true_accuracy)
+from accel_calib_ros.core.advice import (advise, CANDIDATE_NAMES, CANDIDATE_POSES, pose_name,
+                                         predicted_accuracy, true_accuracy)
 from accel_calib_ros.core.errors import InputError
-from accel_calib_ros.core.person import closed_loop, Person, tilt
-from accel_calib_ros.core.simulate import G0, mpu9250_like
+from accel_calib_ros.sim.person import closed_loop, Person, tilt
+from accel_calib_ros.sim.sensor import G0, mpu9250_like
 import numpy as np
 import pytest
 

@@ -20,9 +20,9 @@ import sys
 import time
 
 from accel_calib_ros.core.accel.calibration import Calibration
-from accel_calib_ros.core.simulate import mpu9250_like, simulate_session, simulate_window_means
 from accel_calib_ros.dataio.calibration_file import load_calibration, save_calibration
 from accel_calib_ros.nodes.calibration import CalibrationNode
+from accel_calib_ros.sim.sensor import mpu9250_like, simulate_session, simulate_window_means
 import numpy as np
 import pytest
 import rclpy

@@ -8,12 +8,11 @@ that does not depend on the baseline, a lagged die temperature and a random-walk
 import json
 
 from accel_calib_ros.cli import main
-from accel_calib_ros.core.simulate import (
-    G0, mpu9250_like, random_directions, simulate_session, simulate_static_windows,
-    with_datasheet_effect)
 from accel_calib_ros.modelgap import diagnose, diagnose_windows, held_out_check
 from accel_calib_ros.modelgap.noise import min_detectable_mg, WindowNoise
 from accel_calib_ros.modelgap.workflow import still_drift
+from accel_calib_ros.sim.sensor import (G0, mpu9250_like, random_directions, simulate_session,
+                                        simulate_static_windows, with_datasheet_effect)
 import numpy as np
 import pytest
 from scipy import signal

@@ -10,16 +10,15 @@ import json
 import time
 
 from accel_calib_ros.cli import main
-from accel_calib_ros.core import simulate as sim
 from accel_calib_ros.core.errors import CalibrationError, InputError
 from accel_calib_ros.core.imu_stream import ImuCollector
 from accel_calib_ros.core.magnetometer import canonical
 from accel_calib_ros.core.model import Calibration, MagnetometerPart
 from accel_calib_ros.core.samples import Samples
-from accel_calib_ros.dataio.calibration_file import (calibration_from_dict,
-                                                     calibration_to_dict, load_calibration,
-                                                     save_calibration)
+from accel_calib_ros.dataio.calibration_file import (calibration_from_dict, calibration_to_dict,
+                                                     load_calibration, save_calibration)
 from accel_calib_ros.dataio.recording import load_samples, write_bag, write_samples_csv
+from accel_calib_ros.sim import sensor as sim
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation

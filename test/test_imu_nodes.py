@@ -12,11 +12,11 @@ import json
 import random
 import time
 
-from accel_calib_ros.core import simulate as sim
 from accel_calib_ros.core.model import Calibration, MagnetometerPart
 from accel_calib_ros.dataio.calibration_file import load_calibration, save_calibration
 from accel_calib_ros.nodes.calibration import CalibrationNode
 from accel_calib_ros.nodes.correction import CorrectionNode
+from accel_calib_ros.sim import sensor as sim
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 import pytest

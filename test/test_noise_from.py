@@ -4,9 +4,9 @@ import argparse
 import json
 
 from accel_calib_ros.cli import main
-from accel_calib_ros.core.simulate import iter_session, SensorModel
 from accel_calib_ros.dataio.recording import write_samples_csv
 from accel_calib_ros.sim import device
+from accel_calib_ros.sim.sensor import iter_session, SensorModel
 import numpy as np
 import pytest
 

@@ -9,11 +9,11 @@ import sys
 import time
 
 from accel_calib_ros.cli import main, progress
-from accel_calib_ros.core import simulate as sim
 from accel_calib_ros.core.errors import InputError
 from accel_calib_ros.core.samples import Samples
-from accel_calib_ros.dataio.recording import (csv_writer, iter_samples, load_samples,
-                                              write_bag, write_samples_csv)
+from accel_calib_ros.dataio.recording import (csv_writer, iter_samples, load_samples, write_bag,
+                                              write_samples_csv)
+from accel_calib_ros.sim import sensor as sim
 import numpy as np
 import pytest
 
@@ -206,7 +206,7 @@ def test_light_commands_import_no_heavy_module(tmp_path, argv):
     code = ('import sys\nfrom accel_calib_ros.cli import main\n'
             f'try:\n    main({argv!r})\nexcept SystemExit:\n    pass\n'
             'heavy = ("scipy", "matplotlib", "rosbags", "rich", "tqdm", '
-            '"accel_calib_ros.sim.device", "accel_calib_ros.core.simulate", '
+            '"accel_calib_ros.sim.device", "accel_calib_ros.sim.sensor", '
             '"accel_calib_ros.modelgap")\n'
             'print("LOADED", [m for m in heavy if m in sys.modules])\n')
     done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,

@@ -183,8 +183,8 @@ SEED = ranged(0, 2 ** 32 - 1, integer=True)
 
 def load_data(args):
     """Load the recording ``args.data`` in m/s² (with a progress bar on a long read)."""
-    from ..dataio.recording import load_samples
     from .progress import Progress
+    from ..dataio.recording import load_samples
     unit_options(args)                          # a usage mistake before a long read
     size = os.path.getsize(args.data) if os.path.isfile(args.data) else None
     with Progress(size, 'read', 'B') as bar:     # shown only for a long read on a terminal

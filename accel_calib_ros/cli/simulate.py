@@ -67,7 +67,7 @@ def _imu_sensor(sensor, args):
     accelerometer, the poses and the noise are those of the session without them.
     """
     if args.gyro_errors or args.gyro_range:
-        from ..core.simulate import with_gyro_errors
+        from ..sim.sensor import with_gyro_errors
         rng = np.random.default_rng([args.seed, 19, 1])
         full_scale = None if args.gyro_range is None else np.radians(args.gyro_range)
         gyro = with_gyro_errors(sensor, rng, full_scale)
@@ -75,7 +75,7 @@ def _imu_sensor(sensor, args):
             gyro.gyro_T = np.eye(3)
         sensor = gyro
     if args.magnetometer:
-        from ..core.simulate import ak8963_like
+        from ..sim.sensor import ak8963_like
         sensor.magnetometer = ak8963_like(np.random.default_rng([args.seed, 19, 2]))
     return sensor
 
@@ -103,9 +103,9 @@ def imu_truth(sensor, earth_field):
 
 def run(args, out):
     """Run ``accel-calib simulate``; return the exit status."""
-    from ..core import simulate as sim
-    from ..dataio.recording import write_bag, write_samples_csv
     from .progress import Progress
+    from ..dataio.recording import write_bag, write_samples_csv
+    from ..sim import sensor as sim
     if args.output == STDOUT and args.json:
         raise UsageError('accel-calib: simulate -o - writes the CSV to standard output: '
                          'leave out --json')

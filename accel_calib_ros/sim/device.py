@@ -38,7 +38,7 @@ INFO_PERIOD_S = 1.0
 """The info frame is sent at each plug-in and then once a second, as the firmware does."""
 """Seconds of samples simulated at a time once the script has ended."""
 G0 = 9.80665
-"""Standard gravity, m/s² (the simulator's; core.simulate, which needs scipy, loads lazily)."""
+"""Standard gravity, m/s² (the simulator's; sim.sensor, which needs scipy, loads lazily)."""
 EFFECTS = ('scale_nonlinearity', 'temperature_bias', 'temperature_scale', 'bias_drift')
 
 
@@ -138,7 +138,7 @@ def add_arguments(parser):
 
 
 def _directions(args, rng):
-    from ..core.simulate import face_directions, random_directions
+    from .sensor import face_directions, random_directions
     if args.poses == 'faces':
         faces = face_directions()
         count = args.count or 6
@@ -189,7 +189,7 @@ class VirtualSensor:
     """
 
     def __init__(self, args):
-        from ..core.simulate import mpu9250_like
+        from .sensor import mpu9250_like
         self.rng = np.random.default_rng(args.seed)
         effects = [e for e in args.effects.split(',') if e]
         for name in effects:
@@ -218,7 +218,7 @@ class VirtualSensor:
 
     def _imu_parts(self, args):
         """Gyroscope errors and magnetometer from generators of their own (issue 19)."""
-        from ..core.simulate import ak8963_like, with_gyro_errors
+        from .sensor import ak8963_like, with_gyro_errors
         if getattr(args, 'gyro_errors', False):
             self.sensor = with_gyro_errors(self.sensor,
                                            np.random.default_rng([args.seed, 19, 1]))
@@ -249,7 +249,7 @@ class VirtualSensor:
         mag = self.sensor.magnetometer
         if mag is None:
             return {}
-        from ..core.simulate import EarthField
+        from .sensor import EarthField
         field = EarthField()
         return {'magnetometer': {'T': mag.T.tolist(), 'hard_iron_uT': mag.hard_iron.tolist(),
                                  'R': mag.R.tolist(), 'noise_std_uT': mag.noise_std.tolist(),
@@ -258,7 +258,7 @@ class VirtualSensor:
 
     def _script(self):
         """Return the scripted session as a generator of (n, 7) count blocks."""
-        from ..core.simulate import iter_session
+        from .sensor import iter_session
         a = self.args
         temperature = tuple(a.temp_ramp) if a.temp_ramp else a.temp
         # In pieces of CHUNK_S: a long --hold never builds the whole session in memory
@@ -300,7 +300,7 @@ class VirtualSensor:
         mag = self.sensor.magnetometer
         if mag is None or self._field is None:
             return None
-        from ..core.simulate import measure_mag
+        from .sensor import measure_mag
         return measure_mag(mag, np.tile(self._field, (len(t), 1)), t, 1.0 / self.args.rate,
                            self._mag_rng)
 

@@ -38,7 +38,7 @@ import warnings
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from .samples import Samples
+from ..core.samples import Samples
 
 G0 = 9.80665
 """Standard gravity, m/s²."""
@@ -751,7 +751,7 @@ def simulate_static_windows(sensor, directions, rng, hold_s=3.5, count=250, grav
     :param temperature: °C, a constant or a callable of time in seconds.
     :returns: StaticWindows with the sensor's noise as the within-window scatter.
     """
-    from .windows import StaticWindows
+    from ..core.windows import StaticWindows
     n = len(directions)
     t = (np.arange(n) + 0.5) * hold_s
     temp = np.asarray(temperature(t), float) if callable(temperature) \

@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .advice import advise, DEFAULT_TARGET, true_accuracy
-from .simulate import G0
+from .sensor import G0
+from ..core.advice import advise, DEFAULT_TARGET, true_accuracy
 
 
 def tilt(direction, error_deg, rng):
@@ -101,7 +101,7 @@ def closed_loop(sensor, rng, policy='advised', person=None, method='ml',
     :param start: (K, 3) directions held first, whatever the policy.
     :return: LoopResult; ``poses_to_enough`` is None when it never got there.
     """
-    from .accel.calibration import calibrate
+    from ..core.accel.calibration import calibrate
     person = person or Person()
     means, noise = [], None
     result = LoopResult()
