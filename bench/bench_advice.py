@@ -51,7 +51,7 @@ def run_policy(policy, seeds, target, person):
 
 def _plan_loop(sensor, rng, person, target):
     """Hold the fixed plan in order until the advice says enough."""
-    from accel_calib_ros.core.accel.calibration import calibrate
+    from accel_calib_ros.core.accelerometer.fit import calibrate
     from accel_calib_ros.core.advice import true_accuracy
     from accel_calib_ros.sim.person import LoopResult
     means, result = [], LoopResult()

@@ -410,7 +410,7 @@ def bench_signals(folder, trials, seed=16):
     import signal
     import subprocess
     import time
-    from accel_calib_ros.core.model import Calibration
+    from accel_calib_ros.core.calibration import Calibration
     from accel_calib_ros.core.samples import Samples
     from accel_calib_ros.dataio.calibration_file import save_calibration
     from accel_calib_ros.dataio.recording import write_samples_csv

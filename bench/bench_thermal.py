@@ -12,7 +12,7 @@ Prints figures, asserts nothing.
 
 import argparse
 
-from accel_calib_ros.core.accel.calibration import calibrate
+from accel_calib_ros.core.accelerometer.fit import calibrate
 from accel_calib_ros.core.windows import detect_static_windows
 from accel_calib_ros.sim.sensor import mpu9250_like, random_directions, simulate_session
 import numpy as np

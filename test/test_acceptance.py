@@ -1,6 +1,6 @@
 """The one accept-or-refuse decision shared by ``accel-calib fit`` and the node."""
 
-from accel_calib_ros.core.accel.calibration import calibrate
+from accel_calib_ros.core.accelerometer.fit import calibrate
 from accel_calib_ros.core.acceptance import review
 from accel_calib_ros.core.poses import CANDIDATE_POSES
 from accel_calib_ros.sim.sensor import mpu9250_like, random_directions, simulate_window_means

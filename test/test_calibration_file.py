@@ -5,10 +5,10 @@ import os
 import subprocess
 import sys
 
-from accel_calib_ros.core.accel.thermal import ThermalBand, ThermalTable
+from accel_calib_ros.core.accelerometer.thermal import ThermalBand, ThermalTable
 from accel_calib_ros.core.accuracy import direction_errors, predicted_accuracy, worst_faces
+from accel_calib_ros.core.calibration import Calibration
 from accel_calib_ros.core.errors import CalibrationError, InputError
-from accel_calib_ros.core.model import Calibration
 from accel_calib_ros.dataio.calibration_file import (calibration_from_dict, calibration_to_dict,
                                                      calibration_to_yaml, load_calibration,
                                                      save_calibration)
@@ -153,8 +153,8 @@ def test_truncated_files_directories_and_missing_files(tmp_path):
 
 
 def test_loader_imports_no_scipy():
-    code = ('import sys, accel_calib_ros.dataio.calibration_file, accel_calib_ros.core.model, '
-            'accel_calib_ros.core.accuracy; '
+    code = ('import sys, accel_calib_ros.dataio.calibration_file, '
+            'accel_calib_ros.core.calibration, accel_calib_ros.core.accuracy; '
             'print(any(m.startswith("scipy") for m in sys.modules))')
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == 'False'

@@ -19,7 +19,7 @@ import subprocess
 import sys
 import time
 
-from accel_calib_ros.core.accel.calibration import Calibration
+from accel_calib_ros.core.accelerometer.fit import Calibration
 from accel_calib_ros.dataio.calibration_file import load_calibration, save_calibration
 from accel_calib_ros.nodes.calibration import CalibrationNode
 from accel_calib_ros.sim.sensor import mpu9250_like, simulate_session, simulate_window_means

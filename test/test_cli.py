@@ -291,7 +291,7 @@ def test_samples_mode_on_one_pose_is_refused(capsys, tmp_path):
 
 
 def test_unconverged_fit_is_refused_unless_forced(capsys, tmp_path, session_csv, monkeypatch):
-    from accel_calib_ros.core.accel import calibration as core_cal
+    from accel_calib_ros.core.accelerometer import fit as core_cal
     real = core_cal.fit_ml
 
     def never_converges(*a, **kw):

@@ -1,9 +1,9 @@
 """Properties of the fits: ML (Sun & Xu), ellipsoid LS, Gauss-Newton (Gui Yi)."""
 
-from accel_calib_ros.core.accel.ellipsoid import fit_ellipsoid
-from accel_calib_ros.core.accel.gn import fit_gn
-from accel_calib_ros.core.accel.ml import (_Problem, cramer_rao_bound, fit_ml,
-                                           fit_ml_bias_corrected, pack, unpack)
+from accel_calib_ros.core.accelerometer.ellipsoid import fit_ellipsoid
+from accel_calib_ros.core.accelerometer.gn import fit_gn
+from accel_calib_ros.core.accelerometer.ml import (_Problem, cramer_rao_bound, fit_ml,
+                                                   fit_ml_bias_corrected, pack, unpack)
 from accel_calib_ros.core.errors import CalibrationError
 from accel_calib_ros.sim.sensor import face_directions, random_directions, \
     sun_xu_directions

@@ -1,7 +1,7 @@
 """Static windows, thermal tables, the calibration model and its file; real recordings."""
 
-from accel_calib_ros.core.accel.calibration import calibrate, gravity_residuals
-from accel_calib_ros.core.accel.thermal import fit_thermal_table
+from accel_calib_ros.core.accelerometer.fit import calibrate, gravity_residuals
+from accel_calib_ros.core.accelerometer.thermal import fit_thermal_table
 from accel_calib_ros.core.errors import CalibrationError, InputError
 from accel_calib_ros.core.windows import detect_static_windows, OnlineStaticDetector
 from accel_calib_ros.dataio.calibration_file import load_calibration, save_calibration

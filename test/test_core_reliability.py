@@ -1,8 +1,8 @@
 """Predicted accuracy, outlier windows, the gyro in the static test and the gyro bias (core)."""
 
-from accel_calib_ros.core.accel.calibration import (calibrate, check_geometry, estimate_gyro_bias,
+from accel_calib_ros.core.accelerometer.fit import (calibrate, check_geometry, estimate_gyro_bias,
                                                     find_outlier_windows, missing_faces)
-from accel_calib_ros.core.accel.ml import cramer_rao_bound, fit_ml
+from accel_calib_ros.core.accelerometer.ml import cramer_rao_bound, fit_ml
 from accel_calib_ros.core.accuracy import predicted_accuracy
 from accel_calib_ros.core.errors import CalibrationError
 from accel_calib_ros.core.samples import Samples

@@ -13,8 +13,8 @@ import subprocess
 import sys
 import time
 
-from accel_calib_ros.core.accel.calibration import Calibration
-from accel_calib_ros.core.accel.thermal import ThermalBand, ThermalTable
+from accel_calib_ros.core.accelerometer.fit import Calibration
+from accel_calib_ros.core.accelerometer.thermal import ThermalBand, ThermalTable
 from accel_calib_ros.dataio.atomic import atomic_write_text
 from accel_calib_ros.dataio.calibration_file import (calibration_to_yaml, load_calibration,
                                                      save_calibration)

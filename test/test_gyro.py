@@ -1,8 +1,9 @@
 """Gyroscope scale and misalignment from the moves between static windows (spec §9)."""
 
-from accel_calib_ros.core.accel.calibration import calibrate
+from accel_calib_ros.core.accelerometer.fit import calibrate
 from accel_calib_ros.core.errors import CalibrationError, InputError
-from accel_calib_ros.core.gyro import (_Moves, clipped, fit_gyro, integrate, predicted_accuracy)
+from accel_calib_ros.core.gyroscope.fit import (_Moves, clipped, fit_gyro, integrate,
+                                                predicted_accuracy)
 from accel_calib_ros.core.samples import Samples
 from accel_calib_ros.core.windows import detect_static_windows
 from accel_calib_ros.sim import sensor as simulate

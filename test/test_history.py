@@ -5,8 +5,8 @@ import subprocess
 import sys
 
 from accel_calib_ros.cli import main
+from accel_calib_ros.core.calibration import Calibration
 from accel_calib_ros.core.errors import InputError
-from accel_calib_ros.core.model import Calibration
 from accel_calib_ros.dataio.history import History
 import numpy as np
 import pytest
@@ -64,7 +64,7 @@ def test_bad_input_is_one_input_error(tmp_path, problem):
 WRITER = """
 import sys
 import numpy as np
-from accel_calib_ros.core.model import Calibration
+from accel_calib_ros.core.calibration import Calibration
 from accel_calib_ros.dataio.history import History
 path, name = sys.argv[1], sys.argv[2]
 rng = np.random.default_rng(abs(hash(name)) % 2**32)

@@ -9,8 +9,8 @@ import shutil
 import sqlite3
 
 from accel_calib_ros.cli import main
+from accel_calib_ros.core.calibration import Calibration
 from accel_calib_ros.core.errors import InputError
-from accel_calib_ros.core.model import Calibration
 from accel_calib_ros.dataio.history import History, HistoryDamaged
 from accel_calib_ros.dataio.sensor_id import normalise_sensor_id
 from accel_calib_ros.sim.sensor import mpu9250_like, simulate_session

@@ -10,10 +10,10 @@ import json
 import time
 
 from accel_calib_ros.cli import main
+from accel_calib_ros.core.calibration import Calibration, MagnetometerPart
+from accel_calib_ros.core.collector import ImuCollector
 from accel_calib_ros.core.errors import CalibrationError, InputError
-from accel_calib_ros.core.imu_stream import ImuCollector
-from accel_calib_ros.core.magnetometer import canonical
-from accel_calib_ros.core.model import Calibration, MagnetometerPart
+from accel_calib_ros.core.magnetometer.fit import canonical
 from accel_calib_ros.core.samples import Samples
 from accel_calib_ros.dataio.calibration_file import (calibration_from_dict, calibration_to_dict,
                                                      load_calibration, save_calibration)

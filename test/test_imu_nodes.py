@@ -12,7 +12,7 @@ import json
 import random
 import time
 
-from accel_calib_ros.core.model import Calibration, MagnetometerPart
+from accel_calib_ros.core.calibration import Calibration, MagnetometerPart
 from accel_calib_ros.dataio.calibration_file import load_calibration, save_calibration
 from accel_calib_ros.nodes.calibration import CalibrationNode
 from accel_calib_ros.nodes.correction import CorrectionNode

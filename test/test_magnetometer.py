@@ -1,9 +1,10 @@
 """Magnetometer soft/hard iron, alignment to the accelerometer, field and dip (spec §10)."""
 
-from accel_calib_ros.core.accel.calibration import calibrate
+from accel_calib_ros.core.accelerometer.fit import calibrate
 from accel_calib_ros.core.errors import CalibrationError, InputError
-from accel_calib_ros.core.magnetometer import (_linear_start, canonical, correct_field,
-                                               fit_alignment, fit_magnetometer, sphere_coverage)
+from accel_calib_ros.core.magnetometer.fit import (_linear_start, canonical, correct_field,
+                                                   fit_alignment, fit_magnetometer,
+                                                   sphere_coverage)
 from accel_calib_ros.core.samples import Samples
 from accel_calib_ros.core.windows import detect_static_windows
 from accel_calib_ros.sim import sensor as simulate

@@ -134,7 +134,7 @@ def test_periods_and_rates_have_sane_low_bounds(make, tmp_path):
 
 
 def test_correction_level_into_a_fifo_is_refused(make, tmp_path):
-    from accel_calib_ros.core.model import Calibration
+    from accel_calib_ros.core.calibration import Calibration
     from accel_calib_ros.dataio.calibration_file import save_calibration
     from accel_calib_ros.nodes.correction import CorrectionNode
     good = tmp_path / 'cal.yaml'

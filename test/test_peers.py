@@ -14,7 +14,7 @@ import json
 import re
 
 from accel_calib_ros.cli import main
-from accel_calib_ros.core.accel.calibration import calibrate
+from accel_calib_ros.core.accelerometer.fit import calibrate
 from accel_calib_ros.core.errors import CalibrationError
 from accel_calib_ros.core.poses import CANDIDATE_POSES
 from accel_calib_ros.core.windows import detect_static_windows

@@ -25,7 +25,7 @@ def big_csv(tmp_path_factory):
     path = folder / 'big.csv'
     write_samples_csv(path, Samples(np.arange(n) * 0.005, accel, np.full(n, 25.0)))
     cal = folder / 'cal.yaml'
-    from accel_calib_ros.core.model import Calibration
+    from accel_calib_ros.core.calibration import Calibration
     from accel_calib_ros.dataio.calibration_file import save_calibration
     save_calibration(Calibration(T=np.diag([1.01, 0.99, 1.0]), bias=[0.1, -0.2, 0.3]), cal)
     return path, cal

@@ -71,7 +71,7 @@ def imu_advice(samples, windows):
     ``magnetometer``: ``status`` ('absent', 'insufficient' or 'ok'), ``coverage``
     (fraction of the sphere of field directions seen), ``missing_direction`` and ``advice``.
     """
-    from ..core.imu import field_advice, gyro_advice
+    from ..core.outcomes import field_advice, gyro_advice
     gyro = gyro_advice(samples, windows if len(windows) else None)
     if samples.mag is None or not samples.mag_rows.any():
         mag = {'status': 'absent', 'coverage': None, 'missing_direction': None,

@@ -402,7 +402,7 @@ def _finish(session, output, label, console, history=None, sensor=None,
     temps = temps[np.isfinite(temps)]
     if cal.temperature_range_c is None and len(temps):
         cal.temperature_range_c = (float(temps.min()), float(temps.max()))
-    from ..core.imu import DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR
+    from ..core.outcomes import DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR
     imu = session.solve_imu(cal, DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR)
     save_calibration(cal, output)
     for outcome in imu:

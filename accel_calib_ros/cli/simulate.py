@@ -87,7 +87,7 @@ def imu_truth(sensor, earth_field):
         d['gyro_full_scale_rad_s'] = float(sensor.gyro_full_scale)
     mag = sensor.magnetometer
     if mag is not None:
-        from ..core.magnetometer import canonical
+        from ..core.magnetometer.fit import canonical
         T, R, field_uT = canonical(mag.T, mag.R, earth_field.field_uT)
         d['magnetometer'] = {
             'T': mag.T.tolist(), 'hard_iron_uT': mag.hard_iron.tolist(), 'R': mag.R.tolist(),

@@ -7,7 +7,7 @@ parameters moves it, at a true acceleration ``a0 = g u``, by
 parameter distribution is ``tr(J(u) C J(u)ᵀ)``; averaged over orientations ``u``
 uniform on the sphere (``E[u] = 0``, ``E[u uᵀ] = I/3``) this is ``tr(M C)`` with the
 closed-form (9, 9) matrix ``M`` below. Parameters are ordered as
-``core.model.PARAMETER_NAMES``: T upper triangular row-major, then the bias. numpy only.
+``core.calibration.PARAMETER_NAMES``: T upper triangular row-major, then the bias. numpy only.
 """
 
 import numpy as np

@@ -229,7 +229,7 @@ def _accuracy(T, cov, gravity):
 
 def _fit(means, weights, noise, gravity, method, floor):
     """Fit ``method`` as ``fit`` does; return the Calibration or raise CalibrationError."""
-    from .accel.calibration import calibrate
+    from .accelerometer.fit import calibrate
     cal = calibrate(means, gravity, method, weights, noise_std=noise, sigma_floor=floor)
     if not (np.all(np.isfinite(cal.T)) and np.all(np.isfinite(cal.bias))) \
             or np.any(np.abs(np.diag(cal.T) - 1.0) > 0.5):
@@ -327,7 +327,7 @@ def advise(means, weights, noise_std, gravity=G0, method='ml', target=DEFAULT_TA
     if not enough:
         choice = _choose(after, u)
         if not solved:             # the walk of the refusals (check_geometry) before a solve
-            from .accel.calibration import geometry_poses
+            from .accelerometer.fit import geometry_poses
             poses = geometry_poses(means, method, 1, weights, noise, floor) if n else []
             choice = CANDIDATE_NAMES.index(poses[0][0]) if poses else 0
         elif cal.cross_axis is not None and cal.cross_axis.poses:

@@ -6,7 +6,7 @@ With the robot resting level, the corrected accelerometer reads the specific for
 roll and pitch (ZYX Euler angles, yaw unobservable and taken as 0) of the sensor
 relative to the robot base. Then ``roll = atan2(f_y, f_z)`` and
 ``pitch = atan2(−f_x, hypot(f_y, f_z))``, and ``Ry(θ) Rx(φ) f = (0, 0, |f|)``: the
-rotation :meth:`core.model.Calibration.level_rotation` applies (ArduPilot's
+rotation :meth:`core.calibration.Calibration.level_rotation` applies (ArduPilot's
 "level" / AHRS_TRIM). numpy only.
 """
 

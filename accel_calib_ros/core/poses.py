@@ -90,7 +90,7 @@ def fisher_rows(T, directions, gravity=9.80665):
 
     :param T: (3, 3) current estimate.
     :param directions: (N, 3) unit gravity directions.
-    :return: (N, 9) rows ``h`` (order of ``core.model.PARAMETER_NAMES``).
+    :return: (N, 9) rows ``h`` (order of ``core.calibration.PARAMETER_NAMES``).
     """
     u = np.asarray(directions, float).reshape(-1, 3)
     n = np.linalg.solve(np.asarray(T, float).T, u.T).T

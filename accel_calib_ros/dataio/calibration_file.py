@@ -11,7 +11,7 @@ non-UTF-8 file, broken or deeply nested YAML - into one
 :class:`~accel_calib_ros.core.errors.InputError` with a one-line message.
 :func:`save_calibration` refuses to write anything that the loader would refuse and
 replaces the file atomically, creating its directory. Imports yaml, numpy and the
-scipy-free ``core.model`` only.
+scipy-free ``core.calibration`` only.
 
 The optional IMU parts (spec §9, §10) are validated the same way: ``gyro: {T, bias,
 predicted_accuracy}`` (T well-conditioned, near identity; bias as ``gyro_bias_rad_s``)
@@ -28,11 +28,11 @@ import os
 import numpy as np
 import yaml
 
-from ..core.accel.thermal import ThermalBand, ThermalTable
+from ..core.accelerometer.thermal import ThermalBand, ThermalTable
+from ..core.calibration import (Calibration, FIELD_RANGE_UT, gyro_problems, magnetometer_problems,
+                                MagnetometerPart, MAX_GYRO_BIAS, MAX_HARD_IRON_UT, METHODS,
+                                PARAMETER_NAMES)
 from ..core.errors import CalibrationError, InputError
-from ..core.model import (Calibration, FIELD_RANGE_UT, gyro_problems, magnetometer_problems,
-                          MagnetometerPart, MAX_GYRO_BIAS, MAX_HARD_IRON_UT, METHODS,
-                          PARAMETER_NAMES)
 
 FORMAT = 'accel_calib_ros/calibration'
 VERSION = 1

@@ -414,7 +414,7 @@ class History:
         Record a fitted calibration (a session of its own unless ``session`` is given).
 
         :param sensor_id: the sensor's name.
-        :param cal: core.model.Calibration.
+        :param cal: core.calibration.Calibration.
         :param windows: windows the fit used (default ``cal.observations``).
         :param time_s: when, Unix time s (default now).
         :param session: session id (default a new one).

@@ -20,7 +20,7 @@ A thin shell around :mod:`accel_calib_ros.core`:
   ``~/status``. ``~/reset`` forgets the collected windows.
 - the whole IMU (spec §9, §10): the raw samples (bounded ring, ``max_gyro_samples``)
   and ``imu/mag`` (sensor_msgs/MagneticField, tesla; decimated, ``max_mag_samples``)
-  are kept (:class:`core.imu_stream.ImuCollector`); once the accelerometer calibration
+  are kept (:class:`core.collector.ImuCollector`); once the accelerometer calibration
   is accepted, ``~/calibrate`` also fits the gyroscope's scale and misalignment from
   the moves between the windows and the magnetometer, and stores each part that
   passes its own limit (``max_gyro_error``, ``max_mag_error``). A sensor whose data
@@ -44,13 +44,13 @@ from std_srvs.srv import Trigger
 
 from .common import (calibration_path, declare_parameters, expand_path, make_directory, Param,
                      ParameterProblem, run, unsafe_output)
-from ..core.accel.calibration import calibrate
-from ..core.accel.thermal import MIN_WINDOWS_PER_BAND
+from ..core.accelerometer.fit import calibrate
+from ..core.accelerometer.thermal import MIN_WINDOWS_PER_BAND
 from ..core.acceptance import review
 from ..core.advice import advise, coverage
+from ..core.collector import DEFAULT_MAX_MAG_SAMPLES, DEFAULT_MAX_SAMPLES, ImuCollector
 from ..core.errors import CalibrationError, InputError
-from ..core.imu import DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR
-from ..core.imu_stream import DEFAULT_MAX_MAG_SAMPLES, DEFAULT_MAX_SAMPLES, ImuCollector
+from ..core.outcomes import DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR
 from ..core.windows import DEFAULTS, OnlineStaticDetector, StaticWindows
 from ..dataio.calibration_file import save_calibration
 
@@ -649,13 +649,13 @@ class CalibrationNode(Node):
         Never raises for them: an absent or insufficient sensor is reported (log, response,
         ``~/status``) and left out of the file.
         """
-        from ..core.imu import store
+        from ..core.outcomes import store
         p = self.params
         try:
             gyro, mag = self.imu.solve(windows, cal, p['max_gyro_error'], p['max_mag_error'],
                                        p['field_uT'] or None)
         except (CalibrationError, InputError, ValueError, np.linalg.LinAlgError) as err:
-            from ..core.imu import SensorOutcome
+            from ..core.outcomes import SensorOutcome
             gyro = SensorOutcome('gyroscope', 'insufficient', f'fit failed: {err}')
             mag = SensorOutcome('magnetometer', 'insufficient', f'fit failed: {err}')
         self._imu_result = (gyro, mag)
@@ -667,7 +667,7 @@ class CalibrationNode(Node):
 
     def _imu_report(self, success, message):
         """Return the per-sensor statuses and the spec's ``gyro_*``/``mag_*`` keys of a solve."""
-        from ..core.imu import json_keys, SensorOutcome, sensors_dict
+        from ..core.outcomes import json_keys, SensorOutcome, sensors_dict
         if not success or self._imu_result is None:
             why = 'not fitted: the accelerometer calibration was refused'
             gyro = SensorOutcome('gyroscope', 'not fitted', why, unit='relative')

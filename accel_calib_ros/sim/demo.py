@@ -361,8 +361,8 @@ def run_offline_demo(args):
     """Without ROS: simulate a session, fit all three sensors, show the correction."""
     from .sensor import (ak8963_like, EarthField, mpu9250_like, random_directions, random_poses,
                          simulate_session, with_gyro_errors)
-    from ..core.accel.calibration import calibrate
-    from ..core.imu import solve_gyro, solve_magnetometer
+    from ..core.accelerometer.fit import calibrate
+    from ..core.outcomes import solve_gyro, solve_magnetometer
     from ..core.windows import detect_static_windows
     rng = np.random.default_rng(args.seed)
     sensor = mpu9250_like(rng)

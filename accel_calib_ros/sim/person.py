@@ -101,7 +101,7 @@ def closed_loop(sensor, rng, policy='advised', person=None, method='ml',
     :param start: (K, 3) directions held first, whatever the policy.
     :return: LoopResult; ``poses_to_enough`` is None when it never got there.
     """
-    from ..core.accel.calibration import calibrate
+    from ..core.accelerometer.fit import calibrate
     person = person or Person()
     means, noise = [], None
     result = LoopResult()

@@ -210,7 +210,7 @@ class MagnetometerModel:
 
     :param T: (3, 3) soft iron, dimensionless (any matrix: symmetric for a physical
         soft-iron effect; the fit reports the equivalent upper-triangular form, see
-        ``core.magnetometer.canonical``).
+        ``core.magnetometer.fit.canonical``).
     :param hard_iron: (3,) offset, µT.
     :param R: (3, 3) rotation from the accelerometer frame to the magnetometer's.
     :param noise_std: (3,) white noise per sample, µT.

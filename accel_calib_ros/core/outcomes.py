@@ -2,8 +2,8 @@
 The whole IMU from one session: the gyroscope and magnetometer beside the accelerometer.
 
 What ``accel-calib fit``, ``advise``, ``guide`` and the calibration node share once the
-accelerometer is calibrated: run :func:`core.gyro.fit_gyro` and
-:func:`core.magnetometer.fit_magnetometer` on the same recording and static windows,
+accelerometer is calibrated: run :func:`core.gyroscope.fit.fit_gyro` and
+:func:`core.magnetometer.fit.fit_magnetometer` on the same recording and static windows,
 and judge each sensor on its own (:class:`SensorOutcome`). A sensor whose data are
 absent or insufficient is reported as such and never fails the others:
 
@@ -27,8 +27,8 @@ from typing import Optional
 
 import numpy as np
 
+from .calibration import gyro_problems, magnetometer_problems, MagnetometerPart, MAX_GYRO_BIAS
 from .errors import CalibrationError, InputError
-from .model import gyro_problems, magnetometer_problems, MagnetometerPart, MAX_GYRO_BIAS
 
 STATUSES = ('calibrated', 'absent', 'insufficient', 'refused', 'not fitted', 'not collected')
 """Words of :attr:`SensorOutcome.status`."""
@@ -148,7 +148,7 @@ def solve_gyro(samples, windows=None, accel=None, max_error=DEFAULT_MAX_GYRO_ERR
     :param full_scale: gyro range, rad/s, for the clipping test (None: from the data).
     :returns: SensorOutcome with the GyroCalibration as ``result`` when fitted.
     """
-    from .gyro import fit_gyro
+    from .gyroscope.fit import fit_gyro
     if samples.gyro is None:
         return absent('gyroscope', 'the data have no gx gy gz', 'relative')
     out = SensorOutcome('gyroscope', 'insufficient', limit=max_error, unit='relative')
@@ -204,7 +204,7 @@ def solve_magnetometer(samples, windows=None, accel=None, max_error=DEFAULT_MAX_
     if samples.mag is None or not samples.mag_rows.any():
         return absent('magnetometer', 'the data have no mx my mz' if samples.mag is None
                       else 'no row holds a magnetometer sample', 'uT')
-    from .magnetometer import fit_magnetometer
+    from .magnetometer.fit import fit_magnetometer
     out = SensorOutcome('magnetometer', 'insufficient', limit=max_error, unit='uT')
     try:
         m = fit_magnetometer(samples, windows, accel=accel, field_uT=field_uT)
@@ -292,8 +292,8 @@ def field_directions(mag):
 
     :param mag: (N, 3) µT, NaN rows ignored.
     """
-    from .accel.ml import fit_ml
-    from .magnetometer import MIN_FIELD_TO_NOISE
+    from .accelerometer.ml import fit_ml
+    from .magnetometer.fit import MIN_FIELD_TO_NOISE
     m = np.asarray(mag, float).reshape(-1, 3)
     m = m[np.all(np.isfinite(m), axis=1)]
     if len(m) < 10:
@@ -316,7 +316,7 @@ def field_directions(mag):
 
 def magnetometer_coverage(mag):
     """Return the fraction of the sphere of field directions that samples (N, 3) µT visited."""
-    from .magnetometer import sphere_coverage
+    from .magnetometer.fit import sphere_coverage
     return sphere_coverage(field_directions(mag))
 
 
@@ -330,7 +330,7 @@ def field_advice(mag, dip_deg=None):
         ``missing_direction`` ((3,) unit vector in the sensor frame towards the unseen
         cells, or None) and ``advice`` (words).
     """
-    from .magnetometer import coverage_cells, MIN_COVERAGE, MIN_SPREAD, visited_cells
+    from .magnetometer.fit import coverage_cells, MIN_COVERAGE, MIN_SPREAD, visited_cells
     d = field_directions(mag)
     seen = visited_cells(d)
     cover = float(np.mean(seen))
@@ -376,9 +376,9 @@ def gyro_advice(samples, windows=None, accel=None):
     :returns: dict ``status`` ('absent', 'insufficient' or 'ok'), ``missing_axes``
         (names; None while too few moves to tell), ``excitation_deg`` ((3,) or None),
         ``moves_used`` (None while too few) and ``advice`` (words: the turn to make, from
-        ``core.gyro.TURN_ADVICE``).
+        ``core.gyroscope.fit.TURN_ADVICE``).
     """
-    from .gyro import fit_gyro, TURN_ADVICE
+    from .gyroscope.fit import fit_gyro, TURN_ADVICE
     out = {'status': 'absent', 'missing_axes': [], 'excitation_deg': None, 'moves_used': 0,
            'advice': 'the data have no gx gy gz'}
     if samples.gyro is None:

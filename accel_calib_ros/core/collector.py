@@ -15,7 +15,7 @@ directions. :class:`ImuCollector` keeps
   message is kept (and so on), so the whole session stays covered with ever coarser
   spacing, which is what the ellipsoid fit needs.
 
-:meth:`ImuCollector.solve` runs ``core.imu.solve_gyro`` and ``solve_magnetometer`` on
+:meth:`ImuCollector.solve` runs ``core.outcomes.solve_gyro`` and ``solve_magnetometer`` on
 what was kept, with the node's windows (dicts with ``t_start``/``t_stop``). numpy only
 here (the fits import scipy when they run).
 """
@@ -207,7 +207,7 @@ class ImuCollector:
 
     def coverage(self):
         """Fraction of the sphere of field directions seen so far (a subsample)."""
-        from .imu import magnetometer_coverage
+        from .outcomes import magnetometer_coverage
         step = max(1, len(self.mag) // COVERAGE_SAMPLES)
         return magnetometer_coverage(self.mag[::step, 1:4])
 
@@ -227,7 +227,7 @@ class ImuCollector:
         :param windows: the node's window dicts (``t_start``, ``t_stop``).
         :returns: (gyro SensorOutcome, magnetometer SensorOutcome).
         """
-        from .imu import absent, SensorOutcome, solve_gyro, solve_magnetometer
+        from .outcomes import absent, SensorOutcome, solve_gyro, solve_magnetometer
         raw = self.raw_samples()
         if self.ring.capacity <= 0:
             gyro = SensorOutcome('gyroscope', 'not collected', 'the node keeps no raw samples '

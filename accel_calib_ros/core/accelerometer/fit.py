@@ -8,8 +8,8 @@ Convention (spec section 3)::
 
 ``T`` is upper triangular and dimensionless (scale x non-orthogonality, Sun & Xu
 eq. 1-4), ``bias`` in m/s², ``drift`` from the temperature-band tables (zero when
-there are none). The :class:`~accel_calib_ros.core.model.Calibration` data class
-lives in ``core.model`` (re-exported here); files are read and written by
+there are none). The :class:`~accel_calib_ros.core.calibration.Calibration` data class
+lives in ``core.calibration`` (re-exported here); files are read and written by
 ``accel_calib_ros.dataio.calibration_file``.
 """
 
@@ -22,8 +22,8 @@ from .gn import fit_gn
 from .ml import fit_ml, fit_ml_bias_corrected
 from .thermal import fit_thermal_table
 from ..accuracy import predicted_accuracy
+from ..calibration import Calibration, METHODS
 from ..errors import CalibrationError, InputError
-from ..model import Calibration, METHODS
 from ..windows import distinct_directions
 
 __all__ = ['Calibration', 'METHODS', 'accuracy_from_windows', 'calibrate', 'check_geometry',

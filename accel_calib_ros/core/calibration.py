@@ -27,7 +27,7 @@ import datetime
 
 import numpy as np
 
-from .accel.thermal import ThermalTable
+from .accelerometer.thermal import ThermalTable
 
 METHODS = ('ml', 'ml-bc', 'gn', 'ellipsoid')
 """Fitting methods a calibration can come from."""

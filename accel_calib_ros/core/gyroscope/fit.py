@@ -54,9 +54,9 @@ from typing import Optional
 
 import numpy as np
 
-from .accel.calibration import estimate_gyro_bias
-from .errors import CalibrationError, InputError
-from .windows import detect_static_windows
+from ..accelerometer.fit import estimate_gyro_bias
+from ..errors import CalibrationError, InputError
+from ..windows import detect_static_windows
 
 AXES = ('x', 'y', 'z')
 

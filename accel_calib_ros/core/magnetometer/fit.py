@@ -48,9 +48,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .accel.ml import fit_ml
-from .errors import CalibrationError, InputError
-from .gyro import accel_corrector, skew, window_ranges
+from ..accelerometer.ml import fit_ml
+from ..errors import CalibrationError, InputError
+from ..gyroscope.fit import accel_corrector, skew, window_ranges
 
 COVERAGE_CELLS = 50
 """Equal-area cells on the sphere for :func:`sphere_coverage` (about 33° across each)."""
@@ -361,7 +361,7 @@ def fit_magnetometer(samples, windows=None, accel=None, field_uT=None,
         axes; NaN rows where there is no magnetometer sample).
     :param windows: StaticWindows for the alignment, or None to detect them.
     :param accel: accelerometer correction for the up directions (see
-        ``core.gyro.fit_gyro``): None, a callable, a Calibration or a (T, bias) pair.
+        ``core.gyroscope.fit.fit_gyro``): None, a callable, a Calibration or a (T, bias) pair.
     :param field_uT: known field magnitude, µT, or None to fit it (``det T = 1``).
     :param min_coverage: smallest fraction of the sphere of field directions accepted
         (0 also switches off the test for directions near one cone).

@@ -1,0 +1,5 @@
+"""
+The gyroscope's calibration: zero-rate bias, scale and misalignment (interface.md §6, §9).
+
+``fit`` fits T and bias from the moves between the static windows (imu_tk's method).
+"""
