@@ -176,7 +176,7 @@ def _board_source(args, work, env, truth_path):
     :raises RuntimeError: not a source checkout, or the toolchain is missing (one line).
     """
     from .device import _write_truth, add_arguments, VirtualSensor
-    from ..dataio.wire.units import MagConverter
+    from ..dataio.wire.conversion import MagConverter
     root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     harness_src = os.path.join(root, 'test', 'hil', 'mpu_board.c')
     firmware = os.path.join(root, 'firmware')

@@ -30,8 +30,8 @@ import numpy as np
 
 from ..dataio.wire import (ACCEL_LSB_PER_G, Converter, encode_ascii_line, encode_frame,
                            encode_frame_v2, GYRO_LSB_PER_DPS)
+from ..dataio.wire.conversion import MagConverter
 from ..dataio.wire.info import encode_info, encode_info_v2, InfoFrame, MAG_ABSENT, MAG_AK8963
-from ..dataio.wire.units import MagConverter
 
 CHUNK_S = 10.0
 INFO_PERIOD_S = 1.0
