@@ -24,7 +24,7 @@ registers replay the same kind of simulated session at 1 kHz, over a pty at 1 MB
 
     emulated MPU-9250 -> firmware on emulated Uno (pty) -> mpu9250_driver -> ...
 
-This needs a source checkout (the board is a GPL-3 test program under test/hil/, never
+This needs a source checkout (the board is a GPL-3 test program under test/firmware/hil/, never
 installed) and the Debian packages of docs/firmware.md (installed when missing, as root).
 """
 
@@ -178,10 +178,10 @@ def _board_source(args, work, env, truth_path):
     from .device import _write_truth, add_arguments, VirtualSensor
     from ..dataio.wire.conversion import MagConverter
     root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    harness_src = os.path.join(root, 'test', 'hil', 'mpu_board.c')
+    harness_src = os.path.join(root, 'test', 'firmware', 'hil', 'mpu_board.c')
     firmware = os.path.join(root, 'firmware')
     if not os.path.exists(harness_src) or not os.path.exists(os.path.join(firmware, 'Makefile')):
-        raise RuntimeError('--board needs a source checkout (firmware/ and test/hil/)')
+        raise RuntimeError('--board needs a source checkout (firmware/ and test/firmware/hil/)')
     for cmd, what in ((['sh', os.path.join(firmware, 'tools', 'ensure-toolchain.sh'), 'hil'],
                        'toolchain'), (['make', '-s', '-C', firmware], 'make firmware')):
         run = subprocess.run(cmd, capture_output=True, text=True)

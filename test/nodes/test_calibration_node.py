@@ -255,7 +255,7 @@ def test_thermal_tables_when_two_bands_are_filled(node_in_process, tmp_path):
 
 def test_config_files_match_the_declared_parameters():
     from accel_calib_ros.nodes.correction import CorrectionNode
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     context = rclpy.Context()
     rclpy.init(context=context)
     try:

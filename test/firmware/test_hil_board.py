@@ -4,7 +4,7 @@ Hardware in the loop: the real firmware ELF on an emulated Uno (simavr).
 The emulated board has an emulated MPU-9250 on its TWI bus; the real ``mpu9250_driver``
 node reads its UART over a pty.
 
-The board (test/hil/mpu_board.c, GPL-3, built here, never installed) logs every sample
+The board (test/firmware/hil/mpu_board.c, GPL-3, built here, never installed) logs every sample
 it puts in the sensor's registers; the tests check that what reaches the ROS graph is
 exactly those registers, converted. Skipped with one line when the Debian toolchain
 cannot be installed (offline machine).

@@ -10,7 +10,7 @@ from accel_calib_ros.sim.sensor import face_directions, random_directions
 import numpy as np
 import pytest
 
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), '..', 'bench'))
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), '..', '..', 'bench'))
 from ml_reference import fit_ml_reference  # noqa: E402, I100
 
 G = 9.80665

@@ -13,7 +13,7 @@ import os
 import pytest
 
 PACKAGE = 'accel_calib_ros'
-ROOT = os.path.join(os.path.dirname(__file__), '..', PACKAGE)
+ROOT = os.path.join(os.path.dirname(__file__), '..', '..', PACKAGE)
 FLOORS = {'core': 0, 'dataio': 1, 'modelgap': 2, 'sim': 3, 'nodes': 4, 'cli': 4}
 
 
