@@ -10,8 +10,9 @@ import math
 
 import numpy as np
 
-from .common import add_data_args, add_window_args, G0, GRAVITY, load_data, positive, ranged
+from .common import add_data_args, add_window_args, GRAVITY, load_data, positive, ranged
 from ..core.advice import advise, DEFAULT_TARGET
+from ..core.constants import G0
 
 MAX_SIGMA_FLOOR = 10.0
 """Largest --sigma-floor accepted, m/s² (a floor of about 1 g already means no advice)."""

@@ -14,8 +14,6 @@ import stat
 from ..dataio.formats import MAX_MESSAGE, message_line  # noqa: F401 - one line, capped
 
 
-G0 = 9.80665
-"""Standard gravity, m/s² (the default of --gravity)."""
 MAX_WEIGHT_S = 5.0
 """Window weights are capped at this many seconds of samples (see StaticWindows.weights)."""
 MAX_POSES = 100_000

@@ -7,9 +7,10 @@ import time
 
 import numpy as np
 
-from .common import (add_data_args, add_window_args, check_output, G0, GRAVITY, load_data,
+from .common import (add_data_args, add_window_args, check_output, GRAVITY, load_data,
                      ranged, sensor_id, STDOUT, UsageError)
 from ..core.accelerometer.fit import calibrate, METHODS
+from ..core.constants import G0
 from ..core.errors import CalibrationError, InputError
 from ..core.windows import DEFAULTS, detect_static_windows
 

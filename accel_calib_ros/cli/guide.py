@@ -25,11 +25,12 @@ import time
 
 import numpy as np
 
-from .common import (check_output, G0, GRAVITY, non_negative, positive, positive_upto, ranged,
+from .common import (check_output, GRAVITY, non_negative, positive, positive_upto, ranged,
                      same_file, SEED, sensor_id, TEMPERATURE, UsageError)
 from .guide_session import GuideSession
 from .guide_sources import RosSource, SerialSource, SimulatedSource
 from ..core.advice import DEFAULT_TARGET, MIN_WINDOWS, pose_name
+from ..core.constants import G0
 from ..core.errors import CalibrationError, InputError
 
 

@@ -14,9 +14,9 @@ import math
 
 import numpy as np
 
-from .common import G0
 from ..core.advice import advise, coverage, DEFAULT_TARGET
 from ..core.collector import ImuCollector
+from ..core.constants import G0
 
 
 class HoldTracker:

@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from .common import G0
+from ..core.constants import G0
 from ..core.errors import InputError
 
 

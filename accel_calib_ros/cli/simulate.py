@@ -5,8 +5,9 @@ import sys
 
 import numpy as np
 
-from .common import (check_output, check_suffix, G0, GRAVITY, MAX_POSES, ranged, SEED, STDOUT,
+from .common import (check_output, check_suffix, GRAVITY, MAX_POSES, ranged, SEED, STDOUT,
                      TEMPERATURE, UsageError)
+from ..core.constants import G0
 
 
 MAX_SIMULATED_SAMPLES = 50_000_000

@@ -33,10 +33,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .constants import G0
 from .errors import CalibrationError, InputError
 
-G0 = 9.80665
-"""Standard gravity, m/s² (µg in the summaries)."""
 MIN_CLUSTERS = 9
 """A cluster time is kept only when this many independent clusters fit in the record."""
 

@@ -28,6 +28,7 @@ import datetime
 import numpy as np
 
 from .accelerometer.thermal import ThermalTable
+from .constants import G0
 
 METHODS = ('ml', 'ml-bc', 'gn', 'ellipsoid')
 """Fitting methods a calibration can come from."""
@@ -192,7 +193,7 @@ class Calibration:
 
     T: np.ndarray
     bias: np.ndarray
-    gravity: float = 9.80665
+    gravity: float = G0
     method: str = 'ml'
     covariance: np.ndarray = None
     residual_rms: float = float('nan')

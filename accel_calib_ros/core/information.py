@@ -46,6 +46,7 @@ import math
 import numpy as np
 
 from .accuracy import sphere_average_matrix
+from .constants import G0
 from .poses import CANDIDATE_DIRECTIONS, CANDIDATE_NAMES, FACE_COUNT, fisher_rows
 
 SIGMA_FLOOR = 1e-3
@@ -185,7 +186,7 @@ class Information:
         return np.sqrt(np.maximum(value, 0.0))
 
 
-def information(readings, T, bias, gravity=9.80665, method='ml', weights=None,
+def information(readings, T, bias, gravity=G0, method='ml', weights=None,
                 noise_std=None, floor=None):
     """
     Return the information of window means (or samples) about a fitted calibration.

@@ -22,13 +22,13 @@ numpy/scipy only (through the two fits); no files, no ROS.
 """
 
 from dataclasses import dataclass, field
-import math
 from typing import Optional
 
 import numpy as np
 
 from .calibration import gyro_problems, magnetometer_problems, MagnetometerPart, MAX_GYRO_BIAS
 from .errors import CalibrationError, InputError
+from .finite import finite_list, finite_or_none
 
 STATUSES = ('calibrated', 'absent', 'insufficient', 'refused', 'not fitted', 'not collected')
 """Words of :attr:`SensorOutcome.status`."""
@@ -51,24 +51,6 @@ Acceptance limit of the magnetometer's predicted accuracy, µT (RMS over directi
 Uncalibrated: tens of µT (hard iron); a hand-held session predicts 0.02-0.1 µT. 1 µT is
 about 2° of heading where the horizontal field is 25 µT.
 """
-
-
-def _finite(value):
-    """Return a float for JSON, None when it is None or not finite."""
-    if value is None:
-        return None
-    value = float(value)
-    return value if math.isfinite(value) else None
-
-
-def _list(array):
-    """Return an array as nested lists of floats (None for a non-finite entry)."""
-    if array is None:
-        return None
-    a = np.asarray(array, float)
-    if a.ndim == 0:
-        return _finite(a)
-    return [_list(v) for v in a]
 
 
 @dataclass
@@ -100,7 +82,7 @@ class SensorOutcome:
     @property
     def predicted_accuracy(self):
         """Return the fit's predicted accuracy (None without a fit or when not finite)."""
-        return None if self.result is None else _finite(self.result.predicted_accuracy)
+        return None if self.result is None else finite_or_none(self.result.predicted_accuracy)
 
     def line(self):
         """One line for a person: the sensor, its status and the figure or the reason."""
@@ -116,7 +98,7 @@ class SensorOutcome:
         """JSON-ready summary (numbers finite or None)."""
         d = {'status': self.status, 'reason': self.reason,
              'predicted_accuracy': self.predicted_accuracy,
-             'max_predicted_error': _finite(self.limit), 'unit': self.unit}
+             'max_predicted_error': finite_or_none(self.limit), 'unit': self.unit}
         d.update(self.details)
         return d
 
@@ -127,12 +109,12 @@ def absent(sensor, reason, unit=''):
 
 
 def _gyro_details(g):
-    return {'T': _list(g.T) if g.converged else None, 'bias': _list(g.bias),
+    return {'T': finite_list(g.T) if g.converged else None, 'bias': finite_list(g.bias),
             'moves_used': g.moves_used,
             'moves_dropped': [{'window': m.window, 'reason': m.reason}
                               for m in g.moves_dropped],
-            'excitation_deg': _list(g.excitation_deg), 'missing_axes': list(g.missing_axes),
-            'residual_rms_deg': _finite(g.residual_rms_deg), 'converged': bool(g.converged),
+            'excitation_deg': finite_list(g.excitation_deg), 'missing_axes': list(g.missing_axes),
+            'residual_rms_deg': finite_or_none(g.residual_rms_deg), 'converged': bool(g.converged),
             'message': g.message}
 
 
@@ -181,11 +163,12 @@ def solve_gyro(samples, windows=None, accel=None, max_error=DEFAULT_MAX_GYRO_ERR
 
 
 def _mag_details(m):
-    return {'T': _list(m.T), 'hard_iron_uT': _list(m.hard_iron_uT), 'R': _list(m.R),
-            'field_uT': _finite(m.field_uT), 'dip_deg': _finite(m.dip_deg),
-            'coverage': _finite(m.coverage), 'samples_used': int(m.samples_used),
+    return {'T': finite_list(m.T), 'hard_iron_uT': finite_list(m.hard_iron_uT),
+            'R': finite_list(m.R),
+            'field_uT': finite_or_none(m.field_uT), 'dip_deg': finite_or_none(m.dip_deg),
+            'coverage': finite_or_none(m.coverage), 'samples_used': int(m.samples_used),
             'windows_used': int(m.windows_used), 'alignment_fitted': bool(m.alignment_fitted),
-            'residual_rms_uT': _finite(m.residual_rms_uT), 'converged': bool(m.converged),
+            'residual_rms_uT': finite_or_none(m.residual_rms_uT), 'converged': bool(m.converged),
             'message': m.message}
 
 
@@ -210,7 +193,7 @@ def solve_magnetometer(samples, windows=None, accel=None, max_error=DEFAULT_MAX_
         m = fit_magnetometer(samples, windows, accel=accel, field_uT=field_uT)
     except (CalibrationError, InputError, np.linalg.LinAlgError) as err:
         out.reason = str(err)
-        out.details = {'coverage': _finite(magnetometer_coverage(samples.mag))}
+        out.details = {'coverage': finite_or_none(magnetometer_coverage(samples.mag))}
         return out
     out.result = m
     out.details = _mag_details(m)
@@ -269,13 +252,14 @@ def json_keys(gyro, magnetometer):
                        'mag_predicted_accuracy'))
     if gyro is not None and gyro.calibrated:
         g = gyro.result
-        d.update(gyro_T=_list(g.T), gyro_bias=_list(g.bias),
-                 gyro_predicted_accuracy=_finite(g.predicted_accuracy))
+        d.update(gyro_T=finite_list(g.T), gyro_bias=finite_list(g.bias),
+                 gyro_predicted_accuracy=finite_or_none(g.predicted_accuracy))
     if magnetometer is not None and magnetometer.calibrated:
         m = magnetometer.result
-        d.update(mag_T=_list(m.T), mag_hard_iron_uT=_list(m.hard_iron_uT), mag_R=_list(m.R),
-                 mag_field_uT=_finite(m.field_uT), mag_dip_deg=_finite(m.dip_deg),
-                 mag_predicted_accuracy=_finite(m.predicted_accuracy))
+        d.update(mag_T=finite_list(m.T), mag_hard_iron_uT=finite_list(m.hard_iron_uT),
+                 mag_R=finite_list(m.R),
+                 mag_field_uT=finite_or_none(m.field_uT), mag_dip_deg=finite_or_none(m.dip_deg),
+                 mag_predicted_accuracy=finite_or_none(m.predicted_accuracy))
     return d
 
 
@@ -391,7 +375,7 @@ def gyro_advice(samples, windows=None, accel=None):
                    'between them turn about each axis: '
                    + '; '.join(f'about {a}: {w}' for a, w in TURN_ADVICE.items()))
         return out
-    out.update(missing_axes=list(g.missing_axes), excitation_deg=_list(g.excitation_deg),
+    out.update(missing_axes=list(g.missing_axes), excitation_deg=finite_list(g.excitation_deg),
                moves_used=g.moves_used)
     if g.missing_axes:
         out.update(status='insufficient',

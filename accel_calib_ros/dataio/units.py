@@ -24,11 +24,10 @@ rad/s, temperature in °C as the spec says).
 
 import numpy as np
 
+from ..core.constants import G0
 from ..core.errors import InputError
 from ..core.samples import Samples
 
-G0 = 9.80665
-"""Standard gravity, m/s²: one g and the factor of counts per g."""
 UNITS = ('m/s2', 'g', 'counts')
 """Units the accelerometer columns may be declared in (``--units``)."""
 PLAUSIBLE_G = (0.25, 4.0)

@@ -29,7 +29,7 @@ the report and the JSON then pick it up.
 
 import numpy as np
 
-G0 = 9.80665
+from ..core.constants import G0
 
 
 class Effect:

@@ -49,7 +49,9 @@ from ..core.accelerometer.thermal import MIN_WINDOWS_PER_BAND
 from ..core.acceptance import review
 from ..core.advice import advise, coverage
 from ..core.collector import DEFAULT_MAX_MAG_SAMPLES, DEFAULT_MAX_SAMPLES, ImuCollector
+from ..core.constants import G0
 from ..core.errors import CalibrationError, InputError
+from ..core.finite import finite_or_none
 from ..core.outcomes import DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR
 from ..core.windows import DEFAULTS, OnlineStaticDetector, StaticWindows
 from ..dataio.calibration_file import save_calibration
@@ -79,14 +81,6 @@ LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
 def stamp_seconds(stamp):
     """builtin_interfaces/Time as float seconds."""
     return stamp.sec + stamp.nanosec * 1e-9
-
-
-def finite_or_none(value, digits=6):
-    """Round a float for JSON; None when it is None or not finite."""
-    if value is None:
-        return None
-    value = float(value)
-    return round(value, digits) if math.isfinite(value) else None
 
 
 def _accepts(function, name):
@@ -127,7 +121,7 @@ PARAMS = [
     Param('calibration_file', '',
           "YAML file written by ~/calibrate ('' = $ROS_HOME/accel_calib_ros/"
           'calibration.yaml); its directory is created'),
-    Param('gravity', 9.80665, 'local gravity magnitude, m/s2', low=9.7, high=9.9),
+    Param('gravity', G0, 'local gravity magnitude, m/s2', low=9.7, high=9.9),
     Param('band_width_c', 10.0, 'width of a temperature band, degC', low=0.1, high=100.0),
     Param('thermal', 'auto',
           'auto: temperature-band tables when >= 2 bands are filled; on; off',
@@ -523,7 +517,7 @@ class CalibrationNode(Node):
             response.message = f'refused: {err}'
             self.get_logger().warning(response.message)
         self._last_result = {'success': response.success, 'message': response.message,
-                             'predicted_accuracy': finite_or_none(accuracy),
+                             'predicted_accuracy': finite_or_none(accuracy, 6),
                              'max_predicted_error': self.params['max_predicted_error']}
         self._last_result.update(self._imu_report(response.success, response.message))
         self._model_gap = None

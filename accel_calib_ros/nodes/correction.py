@@ -59,6 +59,7 @@ from sensor_msgs.msg import Imu, MagneticField, Temperature
 from std_srvs.srv import Trigger
 
 from .common import calibration_path, declare_parameters, Param, run, Throttled
+from ..core.constants import TESLA_PER_UT
 from ..core.errors import CalibrationError, InputError
 from ..dataio.calibration_file import load_calibration, save_calibration
 
@@ -71,8 +72,6 @@ QUEUE_DEPTH = 100
 """Subscription and publisher queue depth: 0.1 s at 1 kHz, rides out a file reload."""
 LEVEL_BUFFER = 5000
 """Raw samples kept for ``~/level`` (5 s at 1 kHz)."""
-TESLA_PER_UT = 1e-6
-"""sensor_msgs/MagneticField carries tesla; the calibration file µT."""
 WARN_PERIOD_S = 30.0
 """Throttle of the repeated warnings (temperature outside the calibrated range)."""
 

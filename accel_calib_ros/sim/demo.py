@@ -41,6 +41,8 @@ import time
 import numpy as np
 import yaml
 
+from ..core.constants import G0
+
 
 def _env():
     env = dict(os.environ)
@@ -372,7 +374,7 @@ def run_offline_demo(args):
     session = simulate_session(sensor, random_poses(args.poses, rng), rng, hold_s=args.hold,
                                move_s=args.move, earth_field=earth, tremor_deg=0.3)
     windows = detect_static_windows(session.samples)
-    fresh = 9.80665 * random_directions(200, rng)
+    fresh = G0 * random_directions(200, rng)
     raw = sensor.distort(fresh)
     print(f'simulated {args.poses} hand-held poses (accelerometer, gyroscope with scale and '
           f'misalignment errors, AK8963-like magnetometer), {len(windows)} static windows found')

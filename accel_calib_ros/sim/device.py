@@ -28,6 +28,7 @@ import tty
 
 import numpy as np
 
+from ..core.constants import G0
 from ..dataio.wire import (ACCEL_LSB_PER_G, Converter, encode_ascii_line, encode_frame,
                            encode_frame_v2, GYRO_LSB_PER_DPS)
 from ..dataio.wire.conversion import MagConverter
@@ -37,8 +38,6 @@ CHUNK_S = 10.0
 INFO_PERIOD_S = 1.0
 """The info frame is sent at each plug-in and then once a second, as the firmware does."""
 """Seconds of samples simulated at a time once the script has ended."""
-G0 = 9.80665
-"""Standard gravity, m/s² (the simulator's; sim.sensor, which needs scipy, loads lazily)."""
 EFFECTS = ('scale_nonlinearity', 'temperature_bias', 'temperature_scale', 'bias_drift')
 
 

@@ -38,10 +38,9 @@ import warnings
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from ..core.constants import G0
 from ..core.samples import Samples
 
-G0 = 9.80665
-"""Standard gravity, m/s²."""
 
 MPU9250_LSB = G0 / 16384.0
 """Accelerometer ADC step at ±2 g, m/s² per count."""

@@ -23,6 +23,7 @@ from .ml import fit_ml, fit_ml_bias_corrected
 from .thermal import fit_thermal_table
 from ..accuracy import predicted_accuracy
 from ..calibration import Calibration, METHODS
+from ..constants import G0
 from ..errors import CalibrationError, InputError
 from ..windows import distinct_directions
 
@@ -111,7 +112,7 @@ def geometry_poses(readings, method, count=3, weights=None, noise_std=None, sigm
     u = u[np.linalg.norm(u, axis=1) > 0.5]
     var = window_variance(weights if weights is None or len(u) == len(weights) else None,
                           noise_std, len(u), sigma_floor)
-    info = Information(np.eye(3), np.zeros(3), 9.80665, method, u,
+    info = Information(np.eye(3), np.zeros(3), G0, method, u,
                        fisher_rows(np.eye(3), u), var)
     with np.errstate(all='ignore'):
         return [(name, d, None) for name, d, _ in
@@ -246,7 +247,7 @@ def estimate_gyro_bias(gyro_means, weights=None):
     return np.average(g[ok], axis=0, weights=w[ok])
 
 
-def calibrate(readings, gravity=9.80665, method='ml', weights=None, temps=None,
+def calibrate(readings, gravity=G0, method='ml', weights=None, temps=None,
               thermal=False, band_width_c=10.0, noise_std=None, source='', gyro_means=None,
               mean_count=None, sigma_floor=None):
     """
@@ -380,7 +381,7 @@ def _norm_residuals_fit(y, w, dt, gravity, start, iterations=30):
     return r
 
 
-def find_outlier_windows(readings, weights, counts, noise_std, gravity=9.80665, temps=None,
+def find_outlier_windows(readings, weights, counts, noise_std, gravity=G0, temps=None,
                          thermal=False, band_width_c=10.0, method='ml', rounds=8):
     """
     Windows whose gravity-norm residual after a robust fit is far beyond their noise.

@@ -55,10 +55,9 @@ from typing import Optional
 import numpy as np
 
 from ..accelerometer.fit import estimate_gyro_bias
+from ..constants import AXES
 from ..errors import CalibrationError, InputError
 from ..windows import detect_static_windows
-
-AXES = ('x', 'y', 'z')
 
 TURN_ADVICE = {'x': 'from y axis up to z axis up', 'y': 'from z axis up to x axis up',
                'z': 'from x axis up to y axis up'}

@@ -7,9 +7,8 @@ Sensitivities from the InvenSense MPU-9250 register map and the AK8963 datasheet
 import math
 
 from .frames import INT16_MAX, INT16_MIN, ST2_BITM, ST2_HOFL
+from ...core.constants import G0
 
-G0 = 9.80665
-"""Standard gravity, m/s² (the unit of the accelerometer's full-scale range)."""
 ACCEL_LSB_PER_G = {2: 16384.0, 4: 8192.0, 8: 4096.0, 16: 2048.0}
 """Accelerometer sensitivity per full-scale range (±g), counts per g."""
 GYRO_LSB_PER_DPS = {250: 131.0, 500: 65.5, 1000: 32.8, 2000: 16.4}
