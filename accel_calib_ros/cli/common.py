@@ -374,13 +374,10 @@ def sensor_id(text):
         raise argparse.ArgumentTypeError(str(err)) from None
 
 
-TIME_UNITS = ('s', 'ms', 'us', 'ns')
-"""Units the ``t`` column of a CSV may be given in (--time-unit)."""
-
-
 def add_time_unit_arg(p):
     """Add ``--time-unit`` (the unit of a CSV's ``t`` column) to parser ``p``."""
-    p.add_argument('--time-unit', choices=TIME_UNITS, default=None,
+    from ..dataio.time_units import TIME_UNITS        # numpy-free: --help stays light
+    p.add_argument('--time-unit', choices=tuple(TIME_UNITS), default=None,
                    help='unit of the t column of a CSV (default s, the spec; a spacing no '
                         'IMU has, 1 Hz .. 100 kHz, is refused with the unit it looks like)')
 

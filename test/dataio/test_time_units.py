@@ -4,8 +4,8 @@ import json
 
 from accel_calib_ros.cli import main
 from accel_calib_ros.core.errors import InputError
-from accel_calib_ros.dataio.csv_io import check_time_spacing, PLAUSIBLE_RATE_HZ
 from accel_calib_ros.dataio.recording import load_samples
+from accel_calib_ros.dataio.time_units import check_time_spacing, PLAUSIBLE_RATE_HZ
 import numpy as np
 import pytest
 
