@@ -19,7 +19,8 @@ import sys
 import time
 
 from accel_calib_ros.core.accelerometer.fit import calibrate
-from accel_calib_ros.core.gyroscope.fit import fit_gyro, integrate
+from accel_calib_ros.core.gyroscope.fit import fit_gyro
+from accel_calib_ros.core.gyroscope.moves import integrate
 from accel_calib_ros.core.magnetometer.fit import canonical, correct_field, fit_magnetometer
 from accel_calib_ros.core.windows import detect_static_windows
 from accel_calib_ros.sim import sensor as simulate

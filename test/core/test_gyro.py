@@ -2,8 +2,8 @@
 
 from accel_calib_ros.core.accelerometer.fit import calibrate
 from accel_calib_ros.core.errors import CalibrationError, InputError
-from accel_calib_ros.core.gyroscope.fit import (_Moves, clipped, fit_gyro, integrate,
-                                                predicted_accuracy)
+from accel_calib_ros.core.gyroscope.fit import fit_gyro, predicted_accuracy
+from accel_calib_ros.core.gyroscope.moves import clipped, integrate, Moves
 from accel_calib_ros.core.samples import Samples
 from accel_calib_ros.core.windows import detect_static_windows
 from accel_calib_ros.sim import sensor as simulate
@@ -49,7 +49,7 @@ def test_jacobian_matches_finite_differences():
     steps = [np.full(len(r), 0.01) for r in rates]
     g = rng.standard_normal((6, 3))
     g /= np.linalg.norm(g, axis=1, keepdims=True)
-    moves = _Moves(rates, steps, g[:3], g[3:])
+    moves = Moves(rates, steps, g[:3], g[3:])
     K = np.eye(3) + 0.05 * rng.standard_normal((3, 3))
     _, J, Jb, _ = moves.evaluate(K)
     h = 1e-6
@@ -62,8 +62,8 @@ def test_jacobian_matches_finite_differences():
     for i in range(3):
         d = np.zeros(3)
         d[i] = h
-        up = _Moves([r - d for r in rates], steps, g[:3], g[3:]).evaluate(K)[0]
-        down = _Moves([r + d for r in rates], steps, g[:3], g[3:]).evaluate(K)[0]
+        up = Moves([r - d for r in rates], steps, g[:3], g[3:]).evaluate(K)[0]
+        down = Moves([r + d for r in rates], steps, g[:3], g[3:]).evaluate(K)[0]
         assert np.allclose(Jb[:, :, i], (up - down) / (2 * h), atol=1e-8)
 
 

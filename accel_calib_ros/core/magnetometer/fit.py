@@ -50,7 +50,8 @@ import numpy as np
 
 from ..accelerometer.ml import fit_ml
 from ..errors import CalibrationError, InputError
-from ..gyroscope.fit import accel_corrector, skew, window_ranges
+from ..gyroscope.fit import accel_corrector
+from ..gyroscope.moves import skew, window_ranges
 
 COVERAGE_CELLS = 50
 """Equal-area cells on the sphere for :func:`sphere_coverage` (about 33° across each)."""
