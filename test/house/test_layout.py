@@ -2,8 +2,9 @@
 The plan of the house: floors, no arrow up a floor, no import circle.
 
 Floors, lowest first: ``core`` (science) < ``dataio`` (bytes and files) < ``modelgap``
-(the model-gap workflow) < ``sim`` (simulated hardware) < ``nodes`` and ``cli`` (the
-two front doors, which do not import each other). A module may import from its own
+(the model-gap workflow) < ``session`` (collect, fit and accept, save: what every front
+door shares) < ``sim`` (simulated hardware) < ``nodes`` and ``cli`` (the two front doors,
+which do not import each other). A module may import from its own
 floor and the floors below; every import counts, also one inside a function.
 """
 
@@ -14,7 +15,7 @@ import pytest
 
 PACKAGE = 'accel_calib_ros'
 ROOT = os.path.join(os.path.dirname(__file__), '..', '..', PACKAGE)
-FLOORS = {'core': 0, 'dataio': 1, 'modelgap': 2, 'sim': 3, 'nodes': 4, 'cli': 4}
+FLOORS = {'core': 0, 'dataio': 1, 'modelgap': 2, 'session': 3, 'sim': 4, 'nodes': 5, 'cli': 5}
 
 
 def modules():
