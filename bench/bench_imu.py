@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """
-Benchmark of the gyroscope (spec §9) and magnetometer (spec §10) calibrations.
+Benchmark of the gyroscope (interface.md §9) and magnetometer (interface.md §10) calibrations.
 
 Simulated hand-held sessions (MPU-9250-like accelerometer and gyroscope with ±3 %
 scale and ±2 % cross-axis errors, AK8963-like magnetometer with up to ±30 µT hard

@@ -378,7 +378,7 @@ def add_time_unit_arg(p):
     """Add ``--time-unit`` (the unit of a CSV's ``t`` column) to parser ``p``."""
     from ..dataio.time_units import TIME_UNITS        # numpy-free: --help stays light
     p.add_argument('--time-unit', choices=tuple(TIME_UNITS), default=None,
-                   help='unit of the t column of a CSV (default s, the spec; a spacing no '
+                   help='unit of the t column of a CSV (default s; a spacing no '
                         'IMU has, 1 Hz .. 100 kHz, is refused with the unit it looks like)')
 
 

@@ -54,7 +54,7 @@ def add_arguments(p):
 
 
 def add_imu_arguments(p):
-    """Add the options of the gyroscope and magnetometer parts (spec §9, §10)."""
+    """Add the options of the gyroscope and magnetometer parts (interface.md §9, §10)."""
     from ..core.outcomes import DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR
     g = p.add_argument_group('gyroscope and magnetometer (fitted whenever the data have '
                              'gx gy gz / mx my mz)')
@@ -333,7 +333,7 @@ def _imu_summary(gyro, mag, refusal):
     """Return the ``gyro_*`` / ``mag_*`` keys, the per-sensor statuses, a line per sensor."""
     from ..core.outcomes import json_keys, sensors_dict
     d = json_keys(gyro, mag)
-    del d['gyro_bias']          # the fit's own key (spec §6), the same vector when fitted
+    del d['gyro_bias']          # the fit's own key (interface.md §6), the same vector when fitted
     d['sensors'] = sensors_dict('refused' if refusal else 'calibrated', gyro, mag, refusal)
     d['sensor_lines'] = ['accelerometer: ' + ('calibrated' if refusal is None
                                               else f'refused: {refusal}'),

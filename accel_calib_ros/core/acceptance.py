@@ -2,7 +2,7 @@
 Accept or refuse a fitted calibration: the one decision the CLI and the node share.
 
 A fit is refused when it did not converge (unless the caller allows it), when its
-predicted accuracy (spec section 5, m/s² RMS at 1 g over all orientations) is unknown
+predicted accuracy (interface.md §5, m/s² RMS at 1 g over all orientations) is unknown
 or worse than the limit, and, when the caller asks, when it is not physical for an
 accelerometer in m/s² (scale, cross-axis, bias limits of
 :meth:`core.calibration.Calibration.physical_problems`). A refusal for accuracy says what

@@ -1,5 +1,5 @@
 """
-Predicted accuracy of a calibration from its parameter covariance (spec section 5).
+Predicted accuracy of a calibration from its parameter covariance (interface.md §5).
 
 The corrected acceleration is ``a = T⁻¹ (y - b)``. An error ``(dT, db)`` in the
 parameters moves it, at a true acceleration ``a0 = g u``, by

@@ -86,7 +86,7 @@ class NextPose:
     predicted_accuracy_after: float = None
 
     def to_dict(self):
-        """Return the spec §5 ``next_pose`` object."""
+        """Return the interface.md §5 ``next_pose`` object."""
         after = self.predicted_accuracy_after
         return {'gravity_direction': [round(float(v), 6) for v in self.gravity_direction],
                 'name': self.name,
@@ -122,7 +122,7 @@ class Advice:
     directions: np.ndarray = None
 
     def to_dict(self):
-        """Return exactly the spec §5 keys plus ``method``, ``held_poses`` and ``reason``."""
+        """Return exactly the §5 keys plus ``method``, ``held_poses`` and ``reason``."""
         d = {'windows': int(self.windows),
              'predicted_accuracy': finite_or_none(self.predicted_accuracy),
              'target': float(self.target), 'enough': bool(self.enough),

@@ -73,7 +73,7 @@ class AllanResult:
         return self.bias_instability_tau < self.tau[-1]
 
     def summary(self):
-        """Return the JSON object of spec section 8 (lists, finite numbers)."""
+        """Return the JSON object of interface.md §8 (lists, finite numbers)."""
         return {
             'axes': list(self.axes), 'rate_hz': self.rate_hz, 'duration_s': self.duration_s,
             'tau': self.tau.tolist(), 'adev': self.adev.tolist(),

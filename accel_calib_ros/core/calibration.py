@@ -1,15 +1,15 @@
 """
 The calibration model as data: what a fitted calibration is and how it corrects.
 
-Convention (spec section 3)::
+Convention (interface.md §3)::
 
     raw  = T @ true + bias + drift(raw, temperature)
     true = T⁻¹ @ (raw - bias - drift(raw, temperature))
 
 ``T`` is upper triangular and dimensionless (scale x non-orthogonality, Sun & Xu
 eq. 1-4), ``bias`` in m/s², ``drift`` from the temperature-band tables (zero when
-there are none). The gyroscope bias (spec section 6) is ``raw = true + gyro_bias``
-in rad/s. Optional parts for the other two sensors of the IMU (spec §9, §10):
+there are none). The gyroscope bias (interface.md §6) is ``raw = true + gyro_bias``
+in rad/s. Optional parts for the other two sensors of the IMU (interface.md §9, §10):
 
     raw_gyro = gyro_T @ true_rate + gyro_bias            (rad/s)
     raw_mag  = mag.T @ mag.R @ field_body + mag.hard_iron_uT   (µT)
@@ -112,7 +112,7 @@ def magnetometer_problems(T, hard_iron_uT, R, field_uT, dip_deg):
 @dataclass
 class MagnetometerPart:
     """
-    A fitted magnetometer calibration (spec §10): ``raw = T @ R @ field + hard_iron``.
+    A fitted magnetometer calibration (interface.md §10): ``raw = T @ R @ field + hard_iron``.
 
     :param T: (3, 3) soft iron, dimensionless (upper triangular as fitted).
     :param hard_iron_uT: (3,) µT, magnetometer frame.
@@ -173,7 +173,7 @@ class Calibration:
     :param residual_rms: RMS of |corrected| - gravity over the observations, m/s².
     :param noise_std: (3,) per-sample noise measured inside static windows, m/s².
     :param predicted_accuracy: RMS error of the corrected acceleration at 1 g over
-        orientations uniform on the sphere, from the covariance, m/s² (spec §5), or None.
+        orientations uniform on the sphere, from the covariance, m/s² (interface.md §5), or None.
     :param gyro_bias: (3,) gyroscope bias, rad/s (raw = true + bias), or None.
     :param temperature_range_c: (min, max) temperature of the data the fit used, °C.
     :param level_roll_pitch_rad: (roll, pitch) of the sensor relative to the robot
@@ -185,10 +185,10 @@ class Calibration:
         (``core.information.Information``: the source of the poses a refusal names);
         not stored in files.
     :param gyro_T: (3, 3) gyroscope scale x misalignment (raw = gyro_T @ true + bias),
-        or None when only the bias is calibrated (spec §9).
+        or None when only the bias is calibrated (interface.md §9).
     :param gyro_predicted_accuracy: RMS relative error of the corrected rate over rate
         directions uniform on the sphere (0.001 = 0.1 %), or None.
-    :param magnetometer: MagnetometerPart, or None (spec §10).
+    :param magnetometer: MagnetometerPart, or None (interface.md §10).
     """
 
     T: np.ndarray

@@ -121,7 +121,7 @@ def _gyro_details(g):
 def solve_gyro(samples, windows=None, accel=None, max_error=DEFAULT_MAX_GYRO_ERROR,
                full_scale=None):
     """
-    Calibrate the gyroscope's scale and misalignment from the session (spec §9).
+    Calibrate the gyroscope's scale and misalignment from the session (interface.md §9).
 
     :param samples: Samples (with ``gyro`` rad/s, or None: absent).
     :param windows: the static windows (start/stop indices) or None to detect them.
@@ -175,7 +175,7 @@ def _mag_details(m):
 def solve_magnetometer(samples, windows=None, accel=None, max_error=DEFAULT_MAX_MAG_ERROR,
                        field_uT=None):
     """
-    Calibrate the magnetometer: soft and hard iron, alignment, field and dip (spec §10).
+    Calibrate the magnetometer: soft and hard iron, alignment, field and dip (interface.md §10).
 
     :param samples: Samples (with ``mag`` µT, NaN rows without a sample; None: absent).
     :param windows: the static windows or None to detect them.
@@ -246,7 +246,7 @@ def sensors_dict(accel_status, gyro, magnetometer, accel_reason=None):
 
 
 def json_keys(gyro, magnetometer):
-    """Return the spec's flat keys (§9, §10) ``gyro_*``, ``mag_*``: None when not calibrated."""
+    """Return the flat keys (interface.md §9, §10) ``gyro_*``, ``mag_*``: None if not fitted."""
     d = dict.fromkeys(('gyro_T', 'gyro_bias', 'gyro_predicted_accuracy', 'mag_T',
                        'mag_hard_iron_uT', 'mag_R', 'mag_field_uT', 'mag_dip_deg',
                        'mag_predicted_accuracy'))

@@ -13,7 +13,7 @@ non-UTF-8 file, broken or deeply nested YAML - into one
 replaces the file atomically, creating its directory. Imports yaml, numpy and the
 scipy-free ``core.calibration`` only.
 
-The optional IMU parts (spec §9, §10) are validated the same way: ``gyro: {T, bias,
+The optional IMU parts (interface.md §9, §10) are validated the same way: ``gyro: {T, bias,
 predicted_accuracy}`` (T well-conditioned, near identity; bias as ``gyro_bias_rad_s``)
 and ``magnetometer: {T, hard_iron_uT, R, field_uT, dip_deg, predicted_accuracy}`` (T
 well-conditioned, R a rotation, plausible field and dip). One gyro bias per file: the
@@ -116,10 +116,10 @@ def _to_dict(cal):
 
 def _imu_parts_to_dict(cal):
     """
-    Return the optional ``gyro`` and ``magnetometer`` blocks (spec §9, §10).
+    Return the optional ``gyro`` and ``magnetometer`` blocks (interface.md §9, §10).
 
     ``gyro.bias`` is the same vector as ``gyro_bias_rad_s`` (written for readers that know
-    only spec §6): one bias per file.
+    only interface.md §6): one bias per file.
     """
     d = {}
     if cal.gyro_T is not None:

@@ -110,7 +110,7 @@ def _looks_numeric(text):
 
 def _column_layout(names, path):
     """
-    Map the spec columns to their positions in the header.
+    Map the interface's columns to their positions in the header.
 
     :return: dict with 't', 'ax', 'ay', 'az' and, when present, 'temp' and 'gx', 'gy', 'gz'.
     """
@@ -357,7 +357,7 @@ def _open_csv(path):
 
 def load_csv(path, on_read=None, time_unit='s'):
     """
-    Read the spec CSV into (unvalidated but checked) Samples.
+    Read the interface's CSV into (unvalidated but checked) Samples.
 
     :param time_unit: unit of the ``t`` column ('s', 'ms', 'us' or 'ns'; see
         :func:`check_time_spacing`).

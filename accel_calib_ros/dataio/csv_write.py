@@ -68,7 +68,7 @@ def _csv_block_mag_gaps(data, mag_rows, mag_col, width):
 
 class CsvWriter:
     """
-    The spec CSV written piece by piece into a temporary file, then renamed into place.
+    The interface CSV written piece by piece into a temporary file, then renamed into place.
 
     Use ``csv_writer(path, ...)``; each ``write`` appends rows. Memory stays bounded
     by the pieces given, whatever the length of the file.
@@ -114,7 +114,7 @@ class CsvWriter:
 @contextlib.contextmanager
 def csv_writer(path, has_temp=False, has_gyro=False, extra_names=(), has_mag=False):
     """
-    Open the spec CSV ``path`` for writing in pieces, atomically.
+    Open the interface's CSV ``path`` for writing in pieces, atomically.
 
     The rows go to a temporary file next to ``path``; it replaces ``path`` only when the
     ``with`` block ends normally. On any exception (Ctrl-C included) it is removed and
@@ -144,7 +144,7 @@ def csv_writer(path, has_temp=False, has_gyro=False, extra_names=(), has_mag=Fal
 
 def write_samples_csv(path, samples, extra=None):
     """
-    Write samples as the spec CSV, atomically.
+    Write samples as the interface's CSV, atomically.
 
     Columns: ``t, ax, ay, az``, then ``temp``, ``gx, gy, gz`` and ``mx, my, mz`` when
     present (empty magnetometer cells in rows without a sample), then the ``extra``

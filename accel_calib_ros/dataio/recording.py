@@ -1,10 +1,10 @@
 """
-Read and write recordings: the spec CSV and rosbag2 (MCAP or SQLite 3) bags, as ``Samples``.
+Read and write recordings: the interface's CSV and rosbag2 (MCAP or SQLite 3) bags, as ``Samples``.
 
 ``load_samples`` (whole recording, validated) and ``iter_samples`` (pieces, for streaming
 commands) accept
 
-* a ``.csv`` file (interface spec section 2): a header row; required columns ``t``,
+* a ``.csv`` file (interface.md §2): a header row; required columns ``t``,
   ``ax``, ``ay``, ``az``; optional ``temp``, ``gx``, ``gy``, ``gz`` and ``mx``, ``my``,
   ``mz`` (µT, empty in rows without a magnetometer sample); other columns are ignored;
   names are matched case-insensitively after stripping spaces (``csv_io``);

@@ -9,7 +9,7 @@ A thin shell around :mod:`accel_calib_ros.core`:
   the detector ``accel-calib fit`` uses (same parameters, same windows; the sample rate
   is tracked all along; the gyro joins the stillness test). At most ``max_windows``
   windows are kept.
-- after each window: one log line, the advice of :func:`core.advice.advise` (spec §5
+- after each window: one log line, the advice of :func:`core.advice.advise` (interface.md §5
   JSON) on ``~/advice`` and the progress on ``~/status`` (both std_msgs/String JSON,
   reliable, transient local, depth 1), and ``/diagnostics`` at 1 Hz.
 - ``~/calibrate`` (std_srvs/Trigger) fits ``method`` to the windows and, only if the
@@ -18,7 +18,7 @@ A thin shell around :mod:`accel_calib_ros.core`:
   of the windows; otherwise it refuses with the reason and the file stays byte-for-byte
   as it was. The model-gap check runs after the response and is published on
   ``~/status``. ``~/reset`` forgets the collected windows.
-- the whole IMU (spec §9, §10): the raw samples (bounded ring, ``max_gyro_samples``)
+- the whole IMU (interface.md §9, §10): the raw samples (bounded ring, ``max_gyro_samples``)
   and ``imu/mag`` (sensor_msgs/MagneticField, tesla; decimated, ``max_mag_samples``)
   are kept (:class:`core.collector.ImuCollector`); once the accelerometer calibration
   is accepted, ``~/calibrate`` also fits the gyroscope's scale and misalignment from
@@ -365,7 +365,7 @@ class CalibrationNode(Node):
         return 'gn' if self.params['method'] == 'gn' else 'ml'
 
     def compute_advice(self):
-        """Return the spec §5 advice dict for the windows so far (numbers finite or None)."""
+        """Return the §5 advice (interface.md) for the windows so far (numbers finite or None)."""
         means, weights, _, noise = self._arrays()
         try:
             advice = advise(means, weights, noise if len(means) else 0.03,
@@ -660,7 +660,7 @@ class CalibrationNode(Node):
         store(cal, gyro, mag)
 
     def _imu_report(self, success, message):
-        """Return the per-sensor statuses and the spec's ``gyro_*``/``mag_*`` keys of a solve."""
+        """Return the per-sensor statuses and the ``gyro_*``/``mag_*`` keys of a solve."""
         from ..core.outcomes import json_keys, SensorOutcome, sensors_dict
         if not success or self._imu_result is None:
             why = 'not fitted: the accelerometer calibration was refused'

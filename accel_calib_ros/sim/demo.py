@@ -1,7 +1,7 @@
 """
 End-to-end demo on a simulated sensor: ``python -m accel_calib_ros.sim.demo``.
 
-A virtual MPU9250 streams the spec's serial frames on a pseudo-terminal (with a
+A virtual MPU9250 streams the interface's serial frames on a pseudo-terminal (with a
 little byte corruption), and the three nodes run as separate processes on real
 rclpy over DDS (a private domain, localhost only):
 

@@ -21,7 +21,7 @@ in ``sim.session`` (``iter_session``, ``simulate_session``,
 Each physical effect has its own field and is off when that field is zero, so
 effects can be switched on one at a time (the model-gap workflow relies on it).
 
-The gyroscope and the magnetometer (spec sections 9 and 10), for the true body rate
+The gyroscope and the magnetometer (interface.md §9 and §10), for the true body rate
 ``w`` (rad/s) and the local Earth field ``f`` in the body (accelerometer) frame (µT)::
 
     raw_gyro = clip(gyro_T @ w + gyro_bias + noise, ±gyro_full_scale)
@@ -202,7 +202,7 @@ AK8963_LSB_UT = 0.15
 @dataclass
 class MagnetometerModel:
     """
-    True error parameters of a simulated magnetometer (AK8963-like, spec section 10).
+    True error parameters of a simulated magnetometer (AK8963-like, interface.md §10).
 
     ``raw = T @ R @ field_body + hard_iron + noise``, sampled at ``rate_hz``.
 

@@ -1,4 +1,4 @@
-"""The accel-calib command-line contract (spec section 3)."""
+"""The accel-calib command-line contract (interface.md §3)."""
 
 import json
 import os

@@ -1,4 +1,4 @@
-"""Gyroscope scale and misalignment from the moves between static windows (spec §9)."""
+"""Gyroscope scale and misalignment from the moves between static windows (interface.md §9)."""
 
 from accel_calib_ros.core.accelerometer.fit import calibrate
 from accel_calib_ros.core.errors import CalibrationError, InputError

@@ -1,4 +1,4 @@
-"""Magnetometer soft/hard iron, alignment to the accelerometer, field and dip (spec §10)."""
+"""Magnetometer soft/hard iron, alignment to the accelerometer, field and dip (§10)."""
 
 from accel_calib_ros.core.accelerometer.fit import calibrate
 from accel_calib_ros.core.errors import CalibrationError, InputError

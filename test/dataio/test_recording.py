@@ -135,7 +135,7 @@ def test_csv_absolute_times_keep_fraction(tmp_path):
 
 
 def test_csv_extra_columns_written_and_ignored(tmp_path):
-    """Extra columns are written after the spec ones and ignored on load."""
+    """Extra columns are written after interface.md ones and ignored on load."""
     s = make_samples(temp=False, gyro=False)
     path = tmp_path / 'extra.csv'
     write_samples_csv(path, s, extra={'window': np.arange(len(s)), 'norm': np.ones(len(s))})

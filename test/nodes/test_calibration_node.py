@@ -143,7 +143,7 @@ def test_full_chain_device_to_corrected(tmp_path, procs, client):
     cal = load_calibration(cal_path)
     assert cal.observations >= CAL_POSES - 1
     assert 0 < cal.predicted_accuracy <= 0.02
-    # The advice, live on its latched topic (spec §5 keys).
+    # The advice, live on its latched topic (interface.md §5 keys).
     client.wait(lambda: client.advice.get('windows', 0) >= CAL_POSES - 1, 5.0, 'advice')
     assert {'windows', 'predicted_accuracy', 'target', 'enough', 'next_pose'} \
         <= set(client.advice)

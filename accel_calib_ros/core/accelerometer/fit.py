@@ -1,7 +1,7 @@
 """
 Fit the calibration model to static observations.
 
-Convention (spec section 3)::
+Convention (interface.md §3)::
 
     raw  = T @ true + bias + drift(raw, temperature)
     true = T⁻¹ @ (raw - bias - drift(raw, temperature))
@@ -267,7 +267,7 @@ def calibrate(readings, gravity=G0, method='ml', weights=None, temps=None,
         each observation (1 without weights).
     :param sigma_floor: error of a window mean no averaging removes, m/s² (default
         ``core.information.SIGMA_FLOOR``).
-    :returns: Calibration with ``predicted_accuracy`` (spec §5), ``covariance``,
+    :returns: Calibration with ``predicted_accuracy`` (interface.md §5), ``covariance``,
         ``information`` and, for ``gn``, ``cross_axis`` (:func:`accuracy_from_windows`).
     :raises CalibrationError: the data cannot determine the model (with the reason).
     """

@@ -1,5 +1,5 @@
 """
-Gyroscope scale and misalignment from the moves between static windows (spec section 9).
+Gyroscope scale and misalignment from the moves between static windows (interface.md §9).
 
 The imu_tk method (Tedaldi, Pretto & Menegatti 2014): between two static windows the
 sensor turns; integrating the calibrated rate over that move must turn the gravity
@@ -43,7 +43,7 @@ needs turns about c with gravity in two directions across c. The information lef
 for column c once the other columns are fitted (the Schur complement of its 3x3 block
 of JᵀJ) has the units of a squared angle: its smallest eigenvalue, as an angle, is the
 effective turn about axis c (``excitation_deg``). An axis below ``min_turn_deg`` is
-named ("no turn about the z axis") and T is kept at identity, as the spec asks.
+named ("no turn about the z axis") and T is kept at identity, as interface.md asks.
 
 Moves where a raw gyro channel sits at its full-scale limit (clipping) are dropped
 and reported: the integral through them is wrong. numpy/scipy only.
@@ -110,7 +110,7 @@ class GyroMove:
 @dataclass
 class GyroCalibration:
     """
-    Result of :func:`fit_gyro` (spec section 9): ``raw = T @ true_rate + bias``.
+    Result of :func:`fit_gyro` (interface.md §9): ``raw = T @ true_rate + bias``.
 
     :param T: (3, 3) scale x misalignment, dimensionless (identity when not fitted).
     :param bias: (3,) zero-rate offset, rad/s (raw units).
@@ -232,7 +232,7 @@ def _identifiability(F, prior):
 def fit_gyro(samples, windows=None, accel=None, bias=None, full_scale=None, edge_s=EDGE_S,
              start=None, min_turn_deg=MIN_TURN_DEG, max_iter=50):
     """
-    Fit the gyroscope's scale and misalignment T from a multi-pose session (spec §9).
+    Fit the gyroscope's scale and misalignment T from a multi-pose session (interface.md §9).
 
     :param samples: Samples with ``gyro`` (rad/s), hand-held or on a table: static
         windows with moves between them.

@@ -1,5 +1,5 @@
 """
-Magnetometer (AK8963) hard iron, soft iron and alignment to the accelerometer (spec §10).
+Magnetometer (AK8963) hard iron, soft iron and alignment to the accelerometer (interface.md §10).
 
 Model, for the local Earth field ``f`` in the body (accelerometer) frame, µT::
 
@@ -179,7 +179,7 @@ def correct_field(raw, T, hard_iron_uT, R):
 @dataclass
 class MagnetometerCalibration:
     """
-    Result of :func:`fit_magnetometer` (spec section 10).
+    Result of :func:`fit_magnetometer` (interface.md §10).
 
     :param T: (3, 3) soft iron, upper triangular, dimensionless (det 1 unless the field
         magnitude was given).

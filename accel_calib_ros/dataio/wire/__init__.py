@@ -3,7 +3,7 @@ The MPU9250 serial wire: frames, info frames, parser, ASCII lines, units, device
 
 ROS-free and hardware-free, so it can be tested and benchmarked on its own.
 
-- :mod:`.frames`: data frames, version 1 (interface spec section 1, 22 bytes, CRC-8) and
+- :mod:`.frames`: data frames, version 1 (interface.md §1, 22 bytes, CRC-8) and
   version 2 (section 1b, 25 or 32 bytes, CRC-16, optional AK8963 block);
 - :mod:`.info`: the firmware's info frame, both layouts (docs/firmware.md);
 - :mod:`.parser`: :class:`FrameParser`, the incremental parser that never raises;
