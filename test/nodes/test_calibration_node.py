@@ -263,10 +263,10 @@ def test_config_files_match_the_declared_parameters():
         for cls, name in ((CalibrationNode, 'calibration'), (CorrectionNode, 'correction')):
             path = os.path.join(root, 'config', f'{name}.yaml')
             with open(path, encoding='utf-8') as f:
-                (node_name, body), = yaml.safe_load(f).items()
-            node = cls(context=context, cli_args=['--ros-args', '--params-file', path])
+                body = yaml.safe_load(f)['/**']
+            node = cls(context=context, cli_args=['--ros-args', '-r', '__ns:=/robot1',
+                                                  '--params-file', path])
             try:
-                assert node.get_name() == node_name
                 for key, value in body['ros__parameters'].items():
                     assert node.has_parameter(key), f'{name}.yaml: {key} is not a parameter'
                     assert node.get_parameter(key).value == value
@@ -281,7 +281,7 @@ def test_config_files_match_the_declared_parameters():
               encoding='utf-8') as f:
         source = f.read()
     with open(os.path.join(root, 'config', 'driver.yaml'), encoding='utf-8') as f:
-        driver = yaml.safe_load(f)['mpu9250_driver']['ros__parameters']
+        driver = yaml.safe_load(f)['/**']['ros__parameters']
     for key in driver:
         assert re.search(rf"(declare\(\s*self,\s*|Param\(\s*)'{key}'", source), \
             f'driver.yaml: {key} is not a driver parameter'
