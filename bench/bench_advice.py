@@ -23,8 +23,9 @@ import os
 import tempfile
 
 from accel_calib_ros.core.advice import advise, CANDIDATE_DIRECTIONS
-from accel_calib_ros.core.person import closed_loop, Person, tilt
-from accel_calib_ros.core.simulate import mpu9250_like, simulate_session
+from accel_calib_ros.sim.person import closed_loop, Person, tilt
+from accel_calib_ros.sim.sensor import mpu9250_like
+from accel_calib_ros.sim.session import simulate_session
 import numpy as np
 
 PLAN = CANDIDATE_DIRECTIONS[[0, 1, 2, 3, 4, 5] + list(range(18, 26)) + list(range(6, 18))]
@@ -51,9 +52,9 @@ def run_policy(policy, seeds, target, person):
 
 def _plan_loop(sensor, rng, person, target):
     """Hold the fixed plan in order until the advice says enough."""
+    from accel_calib_ros.core.accelerometer.fit import calibrate
     from accel_calib_ros.core.advice import true_accuracy
-    from accel_calib_ros.core.accel.calibration import calibrate
-    from accel_calib_ros.core.person import LoopResult
+    from accel_calib_ros.sim.person import LoopResult
     means, result = [], LoopResult()
     noise = sensor.noise_std
     for k in range(len(PLAN) + 1):

@@ -93,7 +93,7 @@ def run_publisher(rate, duration, consumers):
 
 def write_calibration(path):
     """Write a plausible calibration file for the correction node to apply."""
-    from accel_calib_ros.core.accel.calibration import Calibration
+    from accel_calib_ros.core.accelerometer.fit import Calibration
     from accel_calib_ros.dataio.calibration_file import save_calibration
     T = np.array([[1.02, 0.01, -0.005], [0.0, 0.98, 0.012], [0.0, 0.0, 1.01]])
     save_calibration(Calibration(T=T, bias=[0.2, -0.1, 0.3], covariance=np.eye(9) * 1e-7,

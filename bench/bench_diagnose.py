@@ -23,12 +23,12 @@ import time
 import zlib
 
 from accel_calib_ros.core.errors import CalibrationError
-from accel_calib_ros.core.simulate import (
-    G0, mpu9250_like, random_directions, simulate_session, simulate_static_windows,
-    with_datasheet_effect)
 from accel_calib_ros.core.windows import detect_static_windows
 from accel_calib_ros.modelgap import diagnose, diagnose_windows, held_out_check
 from accel_calib_ros.modelgap.effects import EFFECTS
+from accel_calib_ros.sim.sensor import G0, mpu9250_like, with_datasheet_effect
+from accel_calib_ros.sim.session import (random_directions, simulate_session,
+                                         simulate_static_windows)
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), '..', 'test'))

@@ -2,7 +2,7 @@
 Benchmark: the firmware on the emulated board (simavr): throughput and recovery.
 
 Builds the firmware (frame version 2 at 1 MBd, version 1 at 1 MBd, version 2 at 115200
-baud) and the board (test/hil/mpu_board.c; needs the Debian packages of docs/firmware.md),
+baud) and the board (test/firmware/hil/mpu_board.c; needs the Debian packages of docs/firmware.md),
 runs each for ``--seconds`` simulated seconds as fast as the host allows, parses the UART
 with the driver's parser and prints flash/RAM used, frames per simulated second, lost
 samples (seq gaps), CRC errors and magnetometer blocks per second. Then it injects each

@@ -20,14 +20,13 @@ import os
 import sys
 import time
 
-from accel_calib_ros.core.accel.calibration import calibrate, gravity_residuals
-from accel_calib_ros.core.accel.ellipsoid import fit_ellipsoid
-from accel_calib_ros.core.accel.gn import fit_gn
-from accel_calib_ros.core.accel.ml import (_Problem, cramer_rao_bound, fit_ml,
-                                           fit_ml_bias_corrected, pack, unpack)
-from accel_calib_ros.core.simulate import (
-    face_directions, random_directions, sun_xu_directions)
+from accel_calib_ros.core.accelerometer.ellipsoid import fit_ellipsoid
+from accel_calib_ros.core.accelerometer.fit import calibrate, gravity_residuals
+from accel_calib_ros.core.accelerometer.gn import fit_gn
+from accel_calib_ros.core.accelerometer.ml import (_Problem, cramer_rao_bound, fit_ml,
+                                                   fit_ml_bias_corrected, pack, unpack)
 from accel_calib_ros.core.windows import detect_static_windows
+from accel_calib_ros.sim.session import face_directions, random_directions, sun_xu_directions
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix

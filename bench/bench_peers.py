@@ -22,7 +22,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), '..', 'test'))
 import peer_data  # noqa: E402  (test helper: the recordings and the peers' numbers)
 
 from accel_calib_ros.cli import main  # noqa: E402,I100
-from accel_calib_ros.core.accel.calibration import calibrate  # noqa: E402
+from accel_calib_ros.core.accelerometer.fit import calibrate  # noqa: E402
 from accel_calib_ros.core.windows import detect_static_windows  # noqa: E402
 from accel_calib_ros.dataio.units import to_si  # noqa: E402
 

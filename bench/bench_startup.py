@@ -23,7 +23,7 @@ import tempfile
 import time
 
 HEAVY = ('scipy', 'matplotlib', 'rosbags', 'rich', 'tqdm', 'accel_calib_ros.sim.device',
-         'accel_calib_ros.core.simulate', 'accel_calib_ros.modelgap')
+         'accel_calib_ros.sim.sensor', 'accel_calib_ros.modelgap')
 
 PROBE = ('import runpy, sys; sys.argv = {argv!r}; '
          'from accel_calib_ros.cli import main\n'

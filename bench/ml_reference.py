@@ -10,7 +10,7 @@ checks and the result dataclass are left out.
 import time
 from types import SimpleNamespace
 
-from accel_calib_ros.core.accel.ml import pack, unpack
+from accel_calib_ros.core.accelerometer.ml import pack, unpack
 from accel_calib_ros.core.errors import CalibrationError
 import numpy as np
 

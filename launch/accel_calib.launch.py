@@ -4,14 +4,19 @@ Start the MPU9250 driver, the calibration node and the correction node.
 Usage::
 
     ros2 launch accel_calib_ros accel_calib.launch.py port:=/dev/ttyACM0
+    ros2 launch accel_calib_ros accel_calib.launch.py namespace:=robot1 frame_id:=robot1/imu_link
     ros2 launch accel_calib_ros accel_calib.launch.py calibration_file:=/data/imu.yaml
     ros2 launch accel_calib_ros accel_calib.launch.py calibrate:=false chain_madgwick:=true
     ros2 launch accel_calib_ros accel_calib.launch.py chain_madgwick:=true use_mag:=true
 
-Each node reads its parameter file from this package's ``config/`` directory; the
-``port`` and ``calibration_file`` arguments override the values there. Then hold the
-sensor still in varied orientations (follow ``/accel_calibration/advice``), call
-``/accel_calibration/calibrate`` and read the corrected stream on ``imu/corrected``.
+Each node is its own process and reads its parameter file from this package's
+``config/`` directory (keyed ``/**``, so the values hold under any namespace or node
+name); the ``port``, ``frame_id``, ``calibration_file``, ``method`` and ``use_sim_time``
+arguments override the values there. ``namespace`` puts every node and topic under it
+(``/robot1/imu/data_raw``, ``/robot1/accel_calibration/calibrate``, ...): one launch
+per robot. Then hold the sensor still in varied orientations (follow
+``accel_calibration/advice``), call ``accel_calibration/calibrate`` and read the
+corrected stream on ``imu/corrected``.
 
 ``chain_madgwick:=true`` adds imu_filter_madgwick (``apt install
 ros-jazzy-imu-filter-madgwick``) on the corrected stream: its input ``imu/data_raw`` is
@@ -33,20 +38,29 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 PACKAGE = 'accel_calib_ros'
+DEFAULT_PORT = '/dev/ttyACM0'
+"""The Arduino Uno's USB serial port (its CDC-ACM chip); the driver's default too."""
 
 
 def generate_launch_description():
     """Build the launch description (no side effects at import time)."""
     config = os.path.join(get_package_share_directory(PACKAGE), 'config')
-    port = LaunchConfiguration('port')
-    calibration_file = LaunchConfiguration('calibration_file')
-    method = LaunchConfiguration('method')
+    arg = LaunchConfiguration
+    namespace = arg('namespace')
+    use_sim_time = arg('use_sim_time')
+    calibration_file = arg('calibration_file')
     default_file = os.path.join(
         os.environ.get('ROS_HOME', os.path.join(os.path.expanduser('~'), '.ros')),
         PACKAGE, 'calibration.yaml')
     return LaunchDescription([
-        DeclareLaunchArgument('port', default_value='/dev/ttyACM0',
+        DeclareLaunchArgument('namespace', default_value='',
+                              description='namespace of every node and topic (one per robot)'),
+        DeclareLaunchArgument('use_sim_time', default_value='false',
+                              description='take time from /clock (a bag or a simulator)'),
+        DeclareLaunchArgument('port', default_value=DEFAULT_PORT,
                               description='serial port of the MPU9250 microcontroller'),
+        DeclareLaunchArgument('frame_id', default_value='imu_link',
+                              description='frame_id of the IMU messages (the URDF link)'),
         DeclareLaunchArgument('calibration_file', default_value=default_file,
                               description='calibration YAML written and applied'),
         DeclareLaunchArgument('method', default_value='ml',
@@ -62,21 +76,26 @@ def generate_launch_description():
                               description='imu_filter_madgwick fuses imu/mag_corrected too '
                                           '(needs a magnetometer calibration)'),
         Node(package=PACKAGE, executable='mpu9250_driver', name='mpu9250_driver',
-             output='screen', emulate_tty=True,
-             parameters=[os.path.join(config, 'driver.yaml'), {'port': port}]),
+             namespace=namespace, output='screen', emulate_tty=True,
+             parameters=[os.path.join(config, 'driver.yaml'),
+                         {'port': arg('port'), 'frame_id': arg('frame_id'),
+                          'use_sim_time': use_sim_time}]),
         Node(package=PACKAGE, executable='accel_calibration', name='accel_calibration',
-             output='screen', emulate_tty=True,
-             condition=IfCondition(LaunchConfiguration('calibrate')),
+             namespace=namespace, output='screen', emulate_tty=True,
+             condition=IfCondition(arg('calibrate')),
              parameters=[os.path.join(config, 'calibration.yaml'),
-                         {'calibration_file': calibration_file, 'method': method}]),
+                         {'calibration_file': calibration_file, 'method': arg('method'),
+                          'use_sim_time': use_sim_time}]),
         Node(package=PACKAGE, executable='accel_correction', name='accel_correction',
-             output='screen', emulate_tty=True,
+             namespace=namespace, output='screen', emulate_tty=True,
              parameters=[os.path.join(config, 'correction.yaml'),
-                         {'calibration_file': calibration_file}]),
+                         {'calibration_file': calibration_file,
+                          'use_sim_time': use_sim_time}]),
         Node(package='imu_filter_madgwick', executable='imu_filter_madgwick_node',
-             name='imu_filter', output='screen', emulate_tty=True,
-             condition=IfCondition(LaunchConfiguration('chain_madgwick')),
+             name='imu_filter', namespace=namespace, output='screen', emulate_tty=True,
+             condition=IfCondition(arg('chain_madgwick')),
              remappings=[('imu/data_raw', 'imu/corrected'), ('imu/mag', 'imu/mag_corrected')],
-             parameters=[{'use_mag': LaunchConfiguration('use_mag'), 'world_frame': 'enu',
-                          'publish_tf': LaunchConfiguration('madgwick_publish_tf')}]),
+             parameters=[{'use_mag': arg('use_mag'), 'world_frame': 'enu',
+                          'publish_tf': arg('madgwick_publish_tf'),
+                          'use_sim_time': use_sim_time}]),
     ])

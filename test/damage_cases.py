@@ -1,7 +1,7 @@
 """
 Damaged and foreign history databases, as users hit them (issue 16).
 
-Shared by test/test_history_integrity.py and bench/bench_reliability.py (the "history"
+Shared by test/dataio/test_history_integrity.py and bench/bench_reliability.py (the "history"
 row): :func:`damage` turns a copy of a good history database into one of ``DAMAGE``.
 """
 

@@ -13,7 +13,7 @@ import pytest
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 FIRMWARE = os.path.join(ROOT, 'firmware')
 ENSURE = os.path.join(FIRMWARE, 'tools', 'ensure-toolchain.sh')
-HARNESS_SRC = os.path.join(ROOT, 'test', 'hil', 'mpu_board.c')
+HARNESS_SRC = os.path.join(ROOT, 'test', 'firmware', 'hil', 'mpu_board.c')
 
 
 def ensure_toolchain(what):

@@ -1,7 +1,7 @@
 """
 Adversarial output paths for the CLI, and the invariant they must keep (issue 16).
 
-Shared by test/test_paths.py (Hypothesis as root, a fixed set as an unprivileged user)
+Shared by test/dataio/test_paths.py (Hypothesis as root, a fixed set as an unprivileged user)
 and bench/bench_reliability.py (the "paths" row). A case is an output path of one kind
 (a FIFO, a device, a link another user owns, a path inside an input bag, ...) in a
 private or a shared (sticky, world-writable) folder, handed to ``fit -o``, ``apply -o`` or

@@ -5,7 +5,7 @@ The three folders (imu_tk, imucal, mpu6050_tomisuarez2) are copies of the record
 with their licence notes (README.txt in each, README.md above them); the environment
 variable ACCEL_CALIB_DATA points at another copy. Each reader returns Samples in the
 recording's own units plus what is needed to compare with the peer's published result.
-The product reads only the spec's CSV and bags; ``to_spec_csv`` converts a peer
+The product reads only the interface's CSV and bags; ``to_spec_csv`` converts a peer
 recording for the command-line tests.
 """
 
@@ -124,7 +124,7 @@ def imucal_annotated():
 
 
 def to_spec_csv(samples, path):
-    """Write Samples as the spec's CSV (t, ax, ay, az[, temp, gx, gy, gz])."""
+    """Write Samples as the interface's CSV (t, ax, ay, az[, temp, gx, gy, gz])."""
     cols = [samples.t[:, None], samples.accel]
     names = ['t', 'ax', 'ay', 'az']
     if samples.temp is not None:

@@ -10,8 +10,9 @@ import math
 
 import numpy as np
 
-from .common import add_data_args, add_window_args, G0, GRAVITY, load_data, positive, ranged
+from .common import add_data_args, add_window_args, GRAVITY, load_data, positive, ranged
 from ..core.advice import advise, DEFAULT_TARGET
+from ..core.constants import G0
 
 MAX_SIGMA_FLOOR = 10.0
 """Largest --sigma-floor accepted, m/s² (a floor of about 1 g already means no advice)."""
@@ -71,7 +72,7 @@ def imu_advice(samples, windows):
     ``magnetometer``: ``status`` ('absent', 'insufficient' or 'ok'), ``coverage``
     (fraction of the sphere of field directions seen), ``missing_direction`` and ``advice``.
     """
-    from ..core.imu import field_advice, gyro_advice
+    from ..core.outcomes import field_advice, gyro_advice
     gyro = gyro_advice(samples, windows if len(windows) else None)
     if samples.mag is None or not samples.mag_rows.any():
         mag = {'status': 'absent', 'coverage': None, 'missing_direction': None,

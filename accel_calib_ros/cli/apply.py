@@ -34,9 +34,9 @@ def run(args, out):
         raise UsageError('accel-calib: apply -o - writes the CSV to standard output: '
                          'leave out --json')
     check_output(args.output, args.calibration, args.data, stdout=True)
+    from .progress import Progress
     from ..dataio.calibration_file import load_calibration
     from ..dataio.recording import csv_writer, iter_samples
-    from .progress import Progress
     if args.output != STDOUT:
         check_suffix(args.output, ('.csv',), 'apply -o')
     unit_options(args)

@@ -14,8 +14,6 @@ import stat
 from ..dataio.formats import MAX_MESSAGE, message_line  # noqa: F401 - one line, capped
 
 
-G0 = 9.80665
-"""Standard gravity, m/s² (the default of --gravity)."""
 MAX_WEIGHT_S = 5.0
 """Window weights are capped at this many seconds of samples (see StaticWindows.weights)."""
 MAX_POSES = 100_000
@@ -183,8 +181,8 @@ SEED = ranged(0, 2 ** 32 - 1, integer=True)
 
 def load_data(args):
     """Load the recording ``args.data`` in m/s² (with a progress bar on a long read)."""
-    from ..dataio.recording import load_samples
     from .progress import Progress
+    from ..dataio.recording import load_samples
     unit_options(args)                          # a usage mistake before a long read
     size = os.path.getsize(args.data) if os.path.isfile(args.data) else None
     with Progress(size, 'read', 'B') as bar:     # shown only for a long read on a terminal
@@ -376,14 +374,11 @@ def sensor_id(text):
         raise argparse.ArgumentTypeError(str(err)) from None
 
 
-TIME_UNITS = ('s', 'ms', 'us', 'ns')
-"""Units the ``t`` column of a CSV may be given in (--time-unit)."""
-
-
 def add_time_unit_arg(p):
     """Add ``--time-unit`` (the unit of a CSV's ``t`` column) to parser ``p``."""
-    p.add_argument('--time-unit', choices=TIME_UNITS, default=None,
-                   help='unit of the t column of a CSV (default s, the spec; a spacing no '
+    from ..dataio.time_units import TIME_UNITS        # numpy-free: --help stays light
+    p.add_argument('--time-unit', choices=tuple(TIME_UNITS), default=None,
+                   help='unit of the t column of a CSV (default s; a spacing no '
                         'IMU has, 1 Hz .. 100 kHz, is refused with the unit it looks like)')
 
 

@@ -2,8 +2,9 @@
 
 import os
 
-from .common import (add_data_args, add_window_args, check_output, G0, GRAVITY, load_data, ranged,
+from .common import (add_data_args, add_window_args, check_output, GRAVITY, load_data, ranged,
                      UsageError)
+from ..core.constants import G0
 
 REPORT_FILES = ('report.md', 'gap.png', 'probes.png')
 """Files ``--report`` writes (plus one ``residuals_stepK.png`` per model step)."""

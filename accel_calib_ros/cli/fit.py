@@ -7,9 +7,10 @@ import time
 
 import numpy as np
 
-from .common import (add_data_args, add_window_args, check_output, G0, GRAVITY, load_data,
+from .common import (add_data_args, add_window_args, check_output, GRAVITY, load_data,
                      ranged, sensor_id, STDOUT, UsageError)
-from ..core.accel.calibration import calibrate, METHODS
+from ..core.accelerometer.fit import calibrate, METHODS
+from ..core.constants import G0
 from ..core.errors import CalibrationError, InputError
 from ..core.windows import DEFAULTS, detect_static_windows
 
@@ -53,8 +54,8 @@ def add_arguments(p):
 
 
 def add_imu_arguments(p):
-    """Add the options of the gyroscope and magnetometer parts (spec §9, §10)."""
-    from ..core.imu import DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR
+    """Add the options of the gyroscope and magnetometer parts (interface.md §9, §10)."""
+    from ..core.outcomes import DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR
     g = p.add_argument_group('gyroscope and magnetometer (fitted whenever the data have '
                              'gx gy gz / mx my mz)')
     g.add_argument('--max-gyro-error', type=ranged(1e-9, 1.0), default=DEFAULT_MAX_GYRO_ERROR,
@@ -77,14 +78,14 @@ def solve_imu(args, samples, windows, cal):
     """
     Solve the gyroscope and magnetometer beside the accelerometer calibration ``cal``.
 
-    Each is judged on its own (``core.imu``): absent or insufficient data, or a fit beyond
+    Each is judged on its own (``core.outcomes``): absent or insufficient data, or a fit beyond
     its limit, leave that part out (``warn_imu`` names what is missing); the
     accelerometer calibration is never refused for them. The calibrated parts are put
     into ``cal``.
 
     :returns: (gyro outcome, magnetometer outcome).
     """
-    from ..core.imu import solve_gyro, solve_magnetometer, store
+    from ..core.outcomes import solve_gyro, solve_magnetometer, store
     gyro = solve_gyro(samples, windows, cal, args.max_gyro_error)
     mag = solve_magnetometer(samples, windows, cal, args.max_mag_error, args.field)
     store(cal, gyro, mag)
@@ -215,7 +216,7 @@ def _observations(samples, args):
                'shows rotation' if windows.dropped else ''))
     weights = windows.weights(args.max_weight_s, samples.rate_hz)
     dropped = list(windows.dropped)
-    from ..core.accel.calibration import find_outlier_windows
+    from ..core.accelerometer.fit import find_outlier_windows
     keep, outliers = find_outlier_windows(
         windows.mean, weights, windows.count, windows.noise_std, args.gravity,
         windows.temp, getattr(args, 'thermal', False), getattr(args, 'band_width', 10.0),
@@ -330,9 +331,9 @@ def _drop_implausible_gyro_bias(cal):
 
 def _imu_summary(gyro, mag, refusal):
     """Return the ``gyro_*`` / ``mag_*`` keys, the per-sensor statuses, a line per sensor."""
-    from ..core.imu import json_keys, sensors_dict
+    from ..core.outcomes import json_keys, sensors_dict
     d = json_keys(gyro, mag)
-    del d['gyro_bias']          # the fit's own key (spec §6), the same vector when fitted
+    del d['gyro_bias']          # the fit's own key (interface.md §6), the same vector when fitted
     d['sensors'] = sensors_dict('refused' if refusal else 'calibrated', gyro, mag, refusal)
     d['sensor_lines'] = ['accelerometer: ' + ('calibrated' if refusal is None
                                               else f'refused: {refusal}'),
@@ -342,7 +343,7 @@ def _imu_summary(gyro, mag, refusal):
 
 def _not_fitted_summary(samples, reason):
     """Return the IMU keys when the accelerometer could not be calibrated (nothing fitted)."""
-    from ..core.imu import SensorOutcome
+    from ..core.outcomes import SensorOutcome
     why = 'not fitted: it needs the gravity directions of a calibrated accelerometer'
     gyro = SensorOutcome('gyroscope', 'not fitted' if samples.gyro is not None else 'absent',
                          why if samples.gyro is not None else 'the data have no gx gy gz',

@@ -25,11 +25,12 @@ import time
 
 import numpy as np
 
-from .common import (check_output, G0, GRAVITY, non_negative, positive, positive_upto, ranged,
+from .common import (check_output, GRAVITY, non_negative, positive, positive_upto, ranged,
                      same_file, SEED, sensor_id, TEMPERATURE, UsageError)
 from .guide_session import GuideSession
 from .guide_sources import RosSource, SerialSource, SimulatedSource
 from ..core.advice import DEFAULT_TARGET, MIN_WINDOWS, pose_name
+from ..core.constants import G0
 from ..core.errors import CalibrationError, InputError
 
 
@@ -402,7 +403,7 @@ def _finish(session, output, label, console, history=None, sensor=None,
     temps = temps[np.isfinite(temps)]
     if cal.temperature_range_c is None and len(temps):
         cal.temperature_range_c = (float(temps.min()), float(temps.max()))
-    from ..core.imu import DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR
+    from ..core.outcomes import DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR
     imu = session.solve_imu(cal, DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR)
     save_calibration(cal, output)
     for outcome in imu:

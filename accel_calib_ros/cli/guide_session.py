@@ -4,9 +4,9 @@ The state of a guided session: holds, windows, advice, and the fit at the end.
 :class:`HoldTracker` decides sample by sample when a pose is held still and for how long;
 :class:`GuideSession` keeps the windows, the advice (``core.advice``) and the pose to ask
 for next, and fits the calibration when it is enough. When the source gives the angular
-rate and the magnetic field, the session also keeps them (``core.imu_stream``) and says
+rate and the magnetic field, the session also keeps them (``core.collector``) and says
 after each window which rotation axis the moves have not turned about yet and how much
-of the sphere of field directions the magnetometer has seen (``core.imu``).
+of the sphere of field directions the magnetometer has seen (``core.outcomes``).
 """
 
 from collections import deque
@@ -14,9 +14,9 @@ import math
 
 import numpy as np
 
-from .common import G0
 from ..core.advice import advise, coverage, DEFAULT_TARGET
-from ..core.imu_stream import ImuCollector
+from ..core.collector import ImuCollector
+from ..core.constants import G0
 
 
 class HoldTracker:
@@ -201,7 +201,7 @@ class GuideSession:
 
     def _imu_advice(self):
         """Recompute the gyroscope and magnetometer advice (after a window)."""
-        from ..core.imu import field_advice, gyro_advice
+        from ..core.outcomes import field_advice, gyro_advice
         raw = self.imu.raw_samples()
         if raw is not None and raw.gyro is not None and len(self.windows) >= 2:
             self.imu_status['gyroscope'] = gyro_advice(
@@ -214,9 +214,9 @@ class GuideSession:
         """
         Fit the gyroscope and magnetometer beside the accelerometer ``cal``; store what passes.
 
-        :returns: (gyro, magnetometer) ``core.imu.SensorOutcome``.
+        :returns: (gyro, magnetometer) ``core.outcomes.SensorOutcome``.
         """
-        from ..core.imu import store
+        from ..core.outcomes import store
         gyro, mag = self.imu.solve(self.windows, cal, max_gyro_error, max_mag_error)
         store(cal, gyro, mag)
         return gyro, mag
@@ -239,7 +239,7 @@ class GuideSession:
 
     def fit(self, source=''):
         """Fit the calibration to the windows; CalibrationError when it cannot."""
-        from ..core.accel.calibration import calibrate
+        from ..core.accelerometer.fit import calibrate
         means, weights, temps, noise = self.arrays()
         return calibrate(means, gravity=self.gravity, method=self.method, weights=weights,
                          temps=temps, noise_std=noise, source=source)

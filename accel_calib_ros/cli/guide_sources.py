@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from .common import G0
+from ..core.constants import G0
 from ..core.errors import InputError
 
 
@@ -47,7 +47,7 @@ class SimulatedSource:
 
     def __init__(self, rate_hz=100.0, speed=1.0, seed=0, error_deg=3.0, turn_s=2.0,
                  temp=25.0, gravity=G0, tremor=0.02, reaction_s=0.5, magnetometer=False):
-        from ..core.simulate import ak8963_like, EarthField, mpu9250_like, with_gyro_errors
+        from ..sim.sensor import ak8963_like, EarthField, mpu9250_like, with_gyro_errors
         self.rng = np.random.default_rng(seed)
         self.sensor = mpu9250_like(self.rng, rate_hz)
         # The gyroscope (and magnetometer) from generators of their own: the accelerometer
@@ -79,7 +79,7 @@ class SimulatedSource:
                 if self._since is None:
                     self._since = t
                 if t - self._since >= self.reaction_s:
-                    from ..core.person import tilt
+                    from ..sim.person import tilt
                     self._from = self.direction.copy()
                     self._to = tilt(session.target_direction, abs(self.rng.normal(
                         0.0, self.error_deg)), self.rng)

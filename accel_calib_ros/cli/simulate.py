@@ -5,8 +5,9 @@ import sys
 
 import numpy as np
 
-from .common import (check_output, check_suffix, G0, GRAVITY, MAX_POSES, ranged, SEED, STDOUT,
+from .common import (check_output, check_suffix, GRAVITY, MAX_POSES, ranged, SEED, STDOUT,
                      TEMPERATURE, UsageError)
+from ..core.constants import G0
 
 
 MAX_SIMULATED_SAMPLES = 50_000_000
@@ -67,7 +68,7 @@ def _imu_sensor(sensor, args):
     accelerometer, the poses and the noise are those of the session without them.
     """
     if args.gyro_errors or args.gyro_range:
-        from ..core.simulate import with_gyro_errors
+        from ..sim.sensor import with_gyro_errors
         rng = np.random.default_rng([args.seed, 19, 1])
         full_scale = None if args.gyro_range is None else np.radians(args.gyro_range)
         gyro = with_gyro_errors(sensor, rng, full_scale)
@@ -75,7 +76,7 @@ def _imu_sensor(sensor, args):
             gyro.gyro_T = np.eye(3)
         sensor = gyro
     if args.magnetometer:
-        from ..core.simulate import ak8963_like
+        from ..sim.sensor import ak8963_like
         sensor.magnetometer = ak8963_like(np.random.default_rng([args.seed, 19, 2]))
     return sensor
 
@@ -87,7 +88,7 @@ def imu_truth(sensor, earth_field):
         d['gyro_full_scale_rad_s'] = float(sensor.gyro_full_scale)
     mag = sensor.magnetometer
     if mag is not None:
-        from ..core.magnetometer import canonical
+        from ..core.magnetometer.fit import canonical
         T, R, field_uT = canonical(mag.T, mag.R, earth_field.field_uT)
         d['magnetometer'] = {
             'T': mag.T.tolist(), 'hard_iron_uT': mag.hard_iron.tolist(), 'R': mag.R.tolist(),
@@ -103,9 +104,10 @@ def imu_truth(sensor, earth_field):
 
 def run(args, out):
     """Run ``accel-calib simulate``; return the exit status."""
-    from ..core import simulate as sim
-    from ..dataio.recording import write_bag, write_samples_csv
     from .progress import Progress
+    from ..dataio.recording import write_bag, write_samples_csv
+    from ..sim import sensor as sim
+    from ..sim import session as sim_session
     if args.output == STDOUT and args.json:
         raise UsageError('accel-calib: simulate -o - writes the CSV to standard output: '
                          'leave out --json')
@@ -134,7 +136,7 @@ def run(args, out):
         if gyro_noise is not None:
             sensor.gyro_noise_std = gyro_noise
     if args.poses == 'faces':
-        directions = sim.face_directions()
+        directions = sim_session.face_directions()
     else:
         sunxu = args.poses.startswith('sunxu:')
         text = args.poses[6:] if sunxu else args.poses
@@ -145,9 +147,9 @@ def run(args, out):
                              f'not {args.poses[:40]!r}') from None
         if not 1 <= count <= MAX_POSES:
             raise UsageError(f'accel-calib: --poses must lie in [1, {MAX_POSES}], got {count}')
-        directions = (sim.sun_xu_directions(count, rng) if sunxu
-                      else sim.random_poses(count, rng) if imu      # headings fixed too
-                      else sim.random_directions(count, rng))
+        directions = (sim_session.sun_xu_directions(count, rng) if sunxu
+                      else sim_session.random_poses(count, rng) if imu      # headings fixed too
+                      else sim_session.random_directions(count, rng))
     if len(args.temp) not in (1, 2):
         raise UsageError('accel-calib: --temp takes one value or START END')
     total = len(directions) * (args.hold + args.move) * args.rate + args.hold * args.rate
@@ -158,13 +160,13 @@ def run(args, out):
     temperature = args.temp[0] if len(args.temp) == 1 else tuple(args.temp)
     earth_field = sim.EarthField(args.field, args.dip)
     kwargs = {'hold_s': args.hold, 'move_s': args.move, 'rate_hz': args.rate}
-    total = sim.session_length(directions, **kwargs)
+    total = sim_session.session_length(directions, **kwargs)
     last_t = []
 
     def pieces(bar):        # streamed: one piece of the session in memory at a time
-        for piece in sim.iter_session(sensor, directions, rng, gravity=args.gravity,
-                                      temperature=temperature, earth_field=earth_field,
-                                      tremor_deg=args.tremor, **kwargs):
+        for piece in sim_session.iter_session(sensor, directions, rng, gravity=args.gravity,
+                                              temperature=temperature, earth_field=earth_field,
+                                              tremor_deg=args.tremor, **kwargs):
             bar.update(len(piece.samples))
             last_t[:] = [float(piece.samples.t[-1])]
             yield piece.samples

@@ -2,10 +2,10 @@
 Accept or refuse a fitted calibration: the one decision the CLI and the node share.
 
 A fit is refused when it did not converge (unless the caller allows it), when its
-predicted accuracy (spec section 5, m/s² RMS at 1 g over all orientations) is unknown
+predicted accuracy (interface.md §5, m/s² RMS at 1 g over all orientations) is unknown
 or worse than the limit, and, when the caller asks, when it is not physical for an
 accelerometer in m/s² (scale, cross-axis, bias limits of
-:meth:`core.model.Calibration.physical_problems`). A refusal for accuracy says what
+:meth:`core.calibration.Calibration.physical_problems`). A refusal for accuracy says what
 would fix it, from the fit's own information (:mod:`core.information`, the source of
 ``advise``): the poses that would lower the predicted accuracy most, never a direction
 already held (within 25°); or, when the cause is the cross-axis terms a ``gn`` fit
@@ -50,7 +50,7 @@ def poses_that_help(cal, count=3):
     """
     Return the poses that would lower the predicted accuracy of ``cal`` most, best first.
 
-    :param cal: Calibration from :func:`core.accel.calibration.calibrate` (its
+    :param cal: Calibration from :func:`core.accelerometer.fit.calibrate` (its
         ``information``); none for a calibration without it.
     :return: list of (name, direction (3,), predicted accuracy once held, m/s², or None).
     """
@@ -129,7 +129,7 @@ def review(cal, max_predicted_error, allow_unconverged=False, refuse_unphysical=
     """
     Decide whether a fitted calibration may be used.
 
-    :param cal: fitted :class:`core.model.Calibration` (``predicted_accuracy`` filled).
+    :param cal: fitted :class:`core.calibration.Calibration` (``predicted_accuracy`` filled).
     :param max_predicted_error: acceptance limit on the predicted accuracy, m/s².
     :param allow_unconverged: accept a fit that did not converge (``Review.converged``
         stays False: the caller says loudly that it is not to be trusted).

@@ -1,5 +1,5 @@
 """
-Predicted accuracy of a calibration from its parameter covariance (spec section 5).
+Predicted accuracy of a calibration from its parameter covariance (interface.md §5).
 
 The corrected acceleration is ``a = T⁻¹ (y - b)``. An error ``(dT, db)`` in the
 parameters moves it, at a true acceleration ``a0 = g u``, by
@@ -7,10 +7,12 @@ parameters moves it, at a true acceleration ``a0 = g u``, by
 parameter distribution is ``tr(J(u) C J(u)ᵀ)``; averaged over orientations ``u``
 uniform on the sphere (``E[u] = 0``, ``E[u uᵀ] = I/3``) this is ``tr(M C)`` with the
 closed-form (9, 9) matrix ``M`` below. Parameters are ordered as
-``core.model.PARAMETER_NAMES``: T upper triangular row-major, then the bias. numpy only.
+``core.calibration.PARAMETER_NAMES``: T upper triangular row-major, then the bias. numpy only.
 """
 
 import numpy as np
+
+from .constants import G0
 
 _ROWS, _COLS = np.triu_indices(3)
 
@@ -31,7 +33,7 @@ def _jacobians(R, directions, gravity):
     return J
 
 
-def sphere_average_matrix(T, gravity=9.80665):
+def sphere_average_matrix(T, gravity=G0):
     """
     (9, 9) matrix ``M`` with ``E_u |da|² = tr(M C)`` for u uniform on the sphere.
 
@@ -49,7 +51,7 @@ def sphere_average_matrix(T, gravity=9.80665):
     return M
 
 
-def predicted_accuracy(T, covariance, gravity=9.80665):
+def predicted_accuracy(T, covariance, gravity=G0):
     """
     RMS error of the corrected acceleration at 1 g over uniform orientations, m/s².
 
@@ -65,7 +67,7 @@ def predicted_accuracy(T, covariance, gravity=9.80665):
     return float(np.sqrt(max(value, 0.0)))
 
 
-def direction_errors(T, covariance, directions, gravity=9.80665):
+def direction_errors(T, covariance, directions, gravity=G0):
     """
     RMS error of the corrected acceleration when gravity lies along each direction.
 
@@ -82,7 +84,7 @@ def direction_errors(T, covariance, directions, gravity=9.80665):
     return np.sqrt(np.maximum(ms, 0.0))
 
 
-def norm_errors(T, covariance, directions, gravity=9.80665):
+def norm_errors(T, covariance, directions, gravity=G0):
     """
     RMS error of ``|corrected| - gravity`` when gravity lies along each direction, m/s².
 
@@ -106,7 +108,7 @@ FACE_NAMES = ('x axis up', 'x axis down', 'y axis up', 'y axis down', 'z axis up
 FACE_DIRECTIONS = np.vstack([np.eye(3)[k // 2] * (1 if k % 2 == 0 else -1) for k in range(6)])
 
 
-def worst_faces(T, covariance, gravity=9.80665, limit=None):
+def worst_faces(T, covariance, gravity=G0, limit=None):
     """
     Faces (axis up/down) ordered from the worst predicted error, with their errors.
 

@@ -30,13 +30,14 @@ import math
 import numpy as np
 
 from .accuracy import predicted_accuracy
+from .constants import G0
 from .errors import CalibrationError, InputError
+from .finite import finite_or_none
 from .information import (Information, NEAR_DEG, parameter_index, PRIOR_WEIGHT,
                           SIGMA_FLOOR, window_variance)
 from .poses import (CANDIDATE_DIRECTIONS, CANDIDATE_NAMES, CANDIDATE_POSES, fisher_rows,
                     pose_name)
 
-G0 = 9.80665
 DEFAULT_TARGET = 0.01
 """Default predicted accuracy target, m/s²."""
 DEFAULT_SIGMA_FLOOR = SIGMA_FLOOR
@@ -85,11 +86,11 @@ class NextPose:
     predicted_accuracy_after: float = None
 
     def to_dict(self):
-        """Return the spec §5 ``next_pose`` object."""
+        """Return the interface.md §5 ``next_pose`` object."""
         after = self.predicted_accuracy_after
         return {'gravity_direction': [round(float(v), 6) for v in self.gravity_direction],
                 'name': self.name,
-                'predicted_accuracy_after': _finite_or_none(after)}
+                'predicted_accuracy_after': finite_or_none(after)}
 
 
 @dataclass
@@ -121,9 +122,9 @@ class Advice:
     directions: np.ndarray = None
 
     def to_dict(self):
-        """Return exactly the spec §5 keys plus ``method``, ``held_poses`` and ``reason``."""
+        """Return exactly the §5 keys plus ``method``, ``held_poses`` and ``reason``."""
         d = {'windows': int(self.windows),
-             'predicted_accuracy': _finite_or_none(self.predicted_accuracy),
+             'predicted_accuracy': finite_or_none(self.predicted_accuracy),
              'target': float(self.target), 'enough': bool(self.enough),
              'next_pose': None if self.next_pose is None else self.next_pose.to_dict(),
              'method': self.method}
@@ -151,13 +152,6 @@ class Advice:
             extra = f' (then about {after:.4f} m/s²)' if after is not None else ''
             lines.append(f'next pose: {self.next_pose.name}{extra}')
         return '\n'.join(lines)
-
-
-def _finite_or_none(value):
-    if value is None:
-        return None
-    value = float(value)
-    return value if math.isfinite(value) else None
 
 
 def _check_inputs(means, weights, noise_std, gravity, method, target):
@@ -229,7 +223,7 @@ def _accuracy(T, cov, gravity):
 
 def _fit(means, weights, noise, gravity, method, floor):
     """Fit ``method`` as ``fit`` does; return the Calibration or raise CalibrationError."""
-    from .accel.calibration import calibrate
+    from .accelerometer.fit import calibrate
     cal = calibrate(means, gravity, method, weights, noise_std=noise, sigma_floor=floor)
     if not (np.all(np.isfinite(cal.T)) and np.all(np.isfinite(cal.bias))) \
             or np.any(np.abs(np.diag(cal.T) - 1.0) > 0.5):
@@ -327,14 +321,14 @@ def advise(means, weights, noise_std, gravity=G0, method='ml', target=DEFAULT_TA
     if not enough:
         choice = _choose(after, u)
         if not solved:             # the walk of the refusals (check_geometry) before a solve
-            from .accel.calibration import geometry_poses
+            from .accelerometer.fit import geometry_poses
             poses = geometry_poses(means, method, 1, weights, noise, floor) if n else []
             choice = CANDIDATE_NAMES.index(poses[0][0]) if poses else 0
         elif cal.cross_axis is not None and cal.cross_axis.poses:
             choice = CANDIDATE_NAMES.index(cal.cross_axis.poses[0])   # measure what gn lacks
         value = after[choice] if solved else exact[choice]
         next_pose = NextPose(CANDIDATE_DIRECTIONS[choice].copy(), CANDIDATE_NAMES[choice],
-                             _finite_or_none(value))
+                             finite_or_none(value))
     return Advice(windows=n, predicted_accuracy=current, target=float(target), enough=enough,
                   next_pose=next_pose, method=method, held=held, reason=reason,
                   noise_inflation=info.inflation if solved else 1.0, directions=u)

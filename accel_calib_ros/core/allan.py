@@ -33,10 +33,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .constants import G0
 from .errors import CalibrationError, InputError
 
-G0 = 9.80665
-"""Standard gravity, m/s² (µg in the summaries)."""
 MIN_CLUSTERS = 9
 """A cluster time is kept only when this many independent clusters fit in the record."""
 
@@ -74,7 +73,7 @@ class AllanResult:
         return self.bias_instability_tau < self.tau[-1]
 
     def summary(self):
-        """Return the JSON object of spec section 8 (lists, finite numbers)."""
+        """Return the JSON object of interface.md §8 (lists, finite numbers)."""
         return {
             'axes': list(self.axes), 'rate_hz': self.rate_hz, 'duration_s': self.duration_s,
             'tau': self.tau.tolist(), 'adev': self.adev.tolist(),

@@ -5,7 +5,7 @@ Its covariance, its predicted accuracy, the cross-axis allowance of ``gn`` and t
 that would add most.
 
 This is the one accuracy model of ``fit``, the calibration node, ``advise`` and
-``diagnose`` (through :func:`core.accel.calibration.calibrate`), and the one source of
+``diagnose`` (through :func:`core.accelerometer.fit.calibrate`), and the one source of
 the poses their refusals and advice name.
 
 **Noise of a window mean** (m/s² per axis): ``var_k = sigma² / w_k + floor²``, with sigma
@@ -46,6 +46,7 @@ import math
 import numpy as np
 
 from .accuracy import sphere_average_matrix
+from .constants import G0
 from .poses import CANDIDATE_DIRECTIONS, CANDIDATE_NAMES, FACE_COUNT, fisher_rows
 
 SIGMA_FLOOR = 1e-3
@@ -56,7 +57,7 @@ CROSS_AXIS_BOUND = 0.02
 CROSS_AXIS_PRIOR = CROSS_AXIS_BOUND / math.sqrt(3.0)
 """RMS of one cross-axis term of T under the datasheet bound taken as uniform."""
 CROSS_AXIS_INDEX = (1, 2, 4)
-"""T_xy, T_xz, T_yz in the 9-parameter order (``core.model.PARAMETER_NAMES``)."""
+"""T_xy, T_xz, T_yz in the 9-parameter order (``core.calibration.PARAMETER_NAMES``)."""
 CROSS_AXIS_PAIRS = ('xy', 'xz', 'yz')
 GN_INDEX = (0, 3, 5, 6, 7, 8)
 """T_xx, T_yy, T_zz, b: the parameters of the 6-parameter ``gn`` model."""
@@ -185,7 +186,7 @@ class Information:
         return np.sqrt(np.maximum(value, 0.0))
 
 
-def information(readings, T, bias, gravity=9.80665, method='ml', weights=None,
+def information(readings, T, bias, gravity=G0, method='ml', weights=None,
                 noise_std=None, floor=None):
     """
     Return the information of window means (or samples) about a fitted calibration.
@@ -294,7 +295,7 @@ def cross_axis_allowance(info, readings, weights=None, noise_std=None, floor=Non
     base, ml_T, ml_accuracy = info, None, None
     if distinct >= 9:
         try:
-            from .accel.ml import fit_ml
+            from .accelerometer.ml import fit_ml
             fit = fit_ml(readings, weights, info.gravity)
             if fit.converged and np.all(np.isfinite(fit.T)):
                 ml_T = fit.T

@@ -6,7 +6,7 @@ With the robot resting level, the corrected accelerometer reads the specific for
 roll and pitch (ZYX Euler angles, yaw unobservable and taken as 0) of the sensor
 relative to the robot base. Then ``roll = atan2(f_y, f_z)`` and
 ``pitch = atan2(−f_x, hypot(f_y, f_z))``, and ``Ry(θ) Rx(φ) f = (0, 0, |f|)``: the
-rotation :meth:`core.model.Calibration.level_rotation` applies (ArduPilot's
+rotation :meth:`core.calibration.Calibration.level_rotation` applies (ArduPilot's
 "level" / AHRS_TRIM). numpy only.
 """
 
@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 
+from .constants import G0
 from .errors import CalibrationError
 
 MAX_TILT_DEG = 25.0
@@ -35,7 +36,7 @@ def roll_pitch(mean_accel):
     return math.atan2(fy, fz), math.atan2(-fx, math.hypot(fy, fz))
 
 
-def level_trim(accel, gravity=9.80665, max_tilt_deg=MAX_TILT_DEG, max_motion=MAX_MOTION):
+def level_trim(accel, gravity=G0, max_tilt_deg=MAX_TILT_DEG, max_motion=MAX_MOTION):
     """
     Measure the level trim from corrected samples taken while the robot rests level.
 

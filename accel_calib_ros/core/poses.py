@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 
+from .constants import G0
 from .errors import InputError
 
 _UPPER = np.triu_indices(3)
@@ -80,7 +81,7 @@ def pose_name(direction):
     return name
 
 
-def fisher_rows(T, directions, gravity=9.80665):
+def fisher_rows(T, directions, gravity=G0):
     """
     Information rows of window means in the 9 ML parameters, per unit noise.
 
@@ -90,7 +91,7 @@ def fisher_rows(T, directions, gravity=9.80665):
 
     :param T: (3, 3) current estimate.
     :param directions: (N, 3) unit gravity directions.
-    :return: (N, 9) rows ``h`` (order of ``core.model.PARAMETER_NAMES``).
+    :return: (N, 9) rows ``h`` (order of ``core.calibration.PARAMETER_NAMES``).
     """
     u = np.asarray(directions, float).reshape(-1, 3)
     n = np.linalg.solve(np.asarray(T, float).T, u.T).T

@@ -11,9 +11,9 @@ non-UTF-8 file, broken or deeply nested YAML - into one
 :class:`~accel_calib_ros.core.errors.InputError` with a one-line message.
 :func:`save_calibration` refuses to write anything that the loader would refuse and
 replaces the file atomically, creating its directory. Imports yaml, numpy and the
-scipy-free ``core.model`` only.
+scipy-free ``core.calibration`` only.
 
-The optional IMU parts (spec §9, §10) are validated the same way: ``gyro: {T, bias,
+The optional IMU parts (interface.md §9, §10) are validated the same way: ``gyro: {T, bias,
 predicted_accuracy}`` (T well-conditioned, near identity; bias as ``gyro_bias_rad_s``)
 and ``magnetometer: {T, hard_iron_uT, R, field_uT, dip_deg, predicted_accuracy}`` (T
 well-conditioned, R a rotation, plausible field and dip). One gyro bias per file: the
@@ -28,11 +28,12 @@ import os
 import numpy as np
 import yaml
 
-from ..core.accel.thermal import ThermalBand, ThermalTable
+from ..core.accelerometer.thermal import ThermalBand, ThermalTable
+from ..core.calibration import (Calibration, FIELD_RANGE_UT, gyro_problems, magnetometer_problems,
+                                MagnetometerPart, MAX_GYRO_BIAS, MAX_HARD_IRON_UT, METHODS,
+                                PARAMETER_NAMES)
 from ..core.errors import CalibrationError, InputError
-from ..core.model import (Calibration, FIELD_RANGE_UT, gyro_problems, magnetometer_problems,
-                          MagnetometerPart, MAX_GYRO_BIAS, MAX_HARD_IRON_UT, METHODS,
-                          PARAMETER_NAMES)
+from ..core.finite import finite_or_none
 
 FORMAT = 'accel_calib_ros/calibration'
 VERSION = 1
@@ -65,10 +66,6 @@ def _floats(values):
     return [float(v) for v in np.asarray(values, float).reshape(-1)]
 
 
-def _finite_or_none(value):
-    return float(value) if value is not None and math.isfinite(value) else None
-
-
 def calibration_to_dict(cal):
     """
     Versioned, YAML-ready mapping with units in the key names.
@@ -94,8 +91,8 @@ def _to_dict(cal):
                                          _floats(cal.nonorthogonality_deg))),
         'fit': {'observations': int(cal.observations), 'iterations': int(cal.iterations),
                 'converged': bool(cal.converged), 'seconds': float(cal.seconds),
-                'residual_rms_m_s2': _finite_or_none(cal.residual_rms),
-                'noise_std_m_s2': [_finite_or_none(v) for v in cal.noise_std]},
+                'residual_rms_m_s2': finite_or_none(cal.residual_rms),
+                'noise_std_m_s2': [finite_or_none(v) for v in cal.noise_std]},
     }
     if cal.predicted_accuracy is not None:
         d['predicted_accuracy_m_s2'] = float(cal.predicted_accuracy)
@@ -119,10 +116,10 @@ def _to_dict(cal):
 
 def _imu_parts_to_dict(cal):
     """
-    Return the optional ``gyro`` and ``magnetometer`` blocks (spec §9, §10).
+    Return the optional ``gyro`` and ``magnetometer`` blocks (interface.md §9, §10).
 
     ``gyro.bias`` is the same vector as ``gyro_bias_rad_s`` (written for readers that know
-    only spec §6): one bias per file.
+    only interface.md §6): one bias per file.
     """
     d = {}
     if cal.gyro_T is not None:
@@ -131,7 +128,7 @@ def _imu_parts_to_dict(cal):
                      'units': 'T dimensionless, bias rad/s, predicted_accuracy relative RMS '
                               'over rate directions',
                      'T': [_floats(row) for row in cal.gyro_T], 'bias': _floats(bias),
-                     'predicted_accuracy': _finite_or_none(cal.gyro_predicted_accuracy)}
+                     'predicted_accuracy': finite_or_none(cal.gyro_predicted_accuracy)}
     mag = cal.magnetometer
     if mag is not None:
         d['magnetometer'] = {
@@ -140,7 +137,7 @@ def _imu_parts_to_dict(cal):
             'T': [_floats(row) for row in mag.T], 'hard_iron_uT': _floats(mag.hard_iron_uT),
             'R': [_floats(row) for row in mag.R], 'field_uT': float(mag.field_uT),
             'dip_deg': float(mag.dip_deg),
-            'predicted_accuracy': _finite_or_none(mag.predicted_accuracy)}
+            'predicted_accuracy': finite_or_none(mag.predicted_accuracy)}
         if mag.noise_std_uT is not None:
             d['magnetometer']['noise_std_uT'] = float(mag.noise_std_uT)
     return d

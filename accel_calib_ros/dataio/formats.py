@@ -1,7 +1,7 @@
 """
-The recording formats: accepted inputs, the spec's column names, message helpers.
+The recording formats: accepted inputs, the interface's column names, message helpers.
 
-Shared by the CSV reader and writer (``csv_io``), the rosbag2 reader and writer
+Shared by the CSV reader and writer (``csv_io``, ``csv_write``), the rosbag2 reader and writer
 (``rosbag_io``) and the dispatcher (``recording``).
 """
 

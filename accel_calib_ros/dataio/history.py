@@ -27,7 +27,6 @@ all of it. Standard library only (sqlite3, json) plus numpy.
 """
 
 import json
-import math
 import os
 import sqlite3
 import stat
@@ -36,64 +35,18 @@ import time
 import numpy as np
 
 from .atomic import make_parents, output_target, remove_made
+from .history_schema import (BadRow, calibration_row, COLUMNS, LEGACY_SESSION, MAX_TIME_S,
+                             MAX_VALUE, SCHEMA, SCHEMA_VERSION, SCHEMAS, SESSION_INDEXES, shown,
+                             window_row)
 from .sensor_id import MAX_SENSOR_ID, normalise_sensor_id
 from ..core.errors import InputError
+from ..core.finite import finite_or_none
 
-SCHEMA_VERSION = 2
-SCHEMAS = ('1', '2')
-"""Schema versions this code reads (1 is migrated to 2 when written)."""
 BUSY_TIMEOUT_S = 30.0
-LEGACY_SESSION = 'legacy'
-"""Session of the rows of a schema-1 database (written before sessions existed)."""
 MAX_PROBLEMS = 50
 """Problems :meth:`History.check` lists at most."""
 
 __all__ = ['History', 'HistoryDamaged', 'MAX_SENSOR_ID', 'new_session_id']
-
-_SCHEMA = """
-CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
-CREATE TABLE IF NOT EXISTS calibrations (
-    id INTEGER PRIMARY KEY AUTOINCREMENT,
-    sensor_id TEXT NOT NULL,
-    time_s REAL NOT NULL,
-    created TEXT,
-    method TEXT,
-    temp_min_c REAL,
-    temp_max_c REAL,
-    predicted_accuracy REAL,
-    residual_rms REAL,
-    windows INTEGER,
-    T TEXT NOT NULL,
-    bias TEXT NOT NULL,
-    gyro_bias TEXT,
-    source TEXT,
-    session TEXT
-);
-CREATE INDEX IF NOT EXISTS calibrations_sensor ON calibrations (sensor_id, time_s);
-CREATE TABLE IF NOT EXISTS windows (
-    id INTEGER PRIMARY KEY AUTOINCREMENT,
-    sensor_id TEXT NOT NULL,
-    time_s REAL NOT NULL,
-    mx REAL NOT NULL, my REAL NOT NULL, mz REAL NOT NULL,
-    temp_c REAL,
-    weight REAL NOT NULL,
-    gx REAL, gy REAL, gz REAL,
-    session TEXT,
-    UNIQUE (sensor_id, mx, my, mz, weight)
-);
-CREATE INDEX IF NOT EXISTS windows_sensor ON windows (sensor_id, time_s);
-"""
-_SESSION_INDEXES = """
-CREATE INDEX IF NOT EXISTS calibrations_session ON calibrations (sensor_id, session);
-CREATE INDEX IF NOT EXISTS windows_session ON windows (sensor_id, session)
-"""
-_COLUMNS = {
-    'calibrations': ('id', 'sensor_id', 'time_s', 'created', 'method', 'temp_min_c',
-                     'temp_max_c', 'predicted_accuracy', 'residual_rms', 'windows', 'T', 'bias',
-                     'gyro_bias', 'source'),
-    'windows': ('id', 'sensor_id', 'time_s', 'mx', 'my', 'mz', 'temp_c', 'weight', 'gx', 'gy',
-                'gz'),
-}
 
 
 class HistoryDamaged(InputError):
@@ -122,14 +75,6 @@ def _session(session):
     return session.strip()
 
 
-def _opt(value):
-    """Finite float or None (SQL NULL)."""
-    if value is None:
-        return None
-    value = float(value)
-    return value if math.isfinite(value) else None
-
-
 def _vector_json(value, size):
     if value is None:
         return None
@@ -137,98 +82,6 @@ def _vector_json(value, size):
     if v.size != size or not np.all(np.isfinite(v)):
         return None
     return json.dumps([float(x) for x in v])
-
-
-# -- reading rows back: every value checked (a damaged or foreign row is named) -------------
-
-class _Bad(Exception):
-    """Internal: one damaged value of a row."""
-
-
-MAX_TIME_S = 1e11
-"""Latest Unix time a row may hold, s (the year 5138): beyond it a time is damage."""
-
-
-MAX_VALUE = 1e9
-"""Largest magnitude a stored parameter or reading may have (raw counts included)."""
-MAX_WEIGHT = 1e12
-"""Largest window weight (samples) a row may hold."""
-
-
-def _real(value, name, optional=False, positive=False, low=-MAX_VALUE, high=MAX_VALUE):
-    if value is None and optional:
-        return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) \
-            or not math.isfinite(value):
-        raise _Bad(f'{name} is {_shown(value)}, not a finite number')
-    if positive and not value > 0:
-        raise _Bad(f'{name} is {value!r}, not positive')
-    if not low <= value <= high:
-        raise _Bad(f'{name} is {value!r}, outside [{low:g}, {high:g}]')
-    return float(value)
-
-
-def _shown(value):
-    text = repr(value)
-    return text if len(text) <= 30 else text[:29] + '…'
-
-
-def _numbers(text, name, size, optional=False, limit=MAX_VALUE):
-    if text is None and optional:
-        return None
-    if not isinstance(text, str):
-        raise _Bad(f'{name} is {_shown(text)}, not JSON text')
-    try:
-        values = json.loads(text)
-    except (ValueError, RecursionError):
-        raise _Bad(f'{name} is not valid JSON ({_shown(text)})') from None
-    if not isinstance(values, list) or len(values) != size:
-        raise _Bad(f'{name} holds {_shown(values)}, not a list of {size} numbers')
-    return [_real(v, name, low=-limit, high=limit) for v in values]
-
-
-def _text(value, name, optional=True):
-    if value is None and optional:
-        return None
-    if not isinstance(value, str):
-        raise _Bad(f'{name} is {_shown(value)}, not text')
-    return value
-
-
-def _calibration_row(r):
-    """Return the dict of one ``calibrations`` row (see :meth:`History.calibrations`)."""
-    T = _numbers(r[10], 'T', 9)
-    low = _real(r[5], 'temp_min_c', optional=True, low=-1e3, high=1e3)
-    high = _real(r[6], 'temp_max_c', optional=True, low=-1e3, high=1e3)
-    windows = r[9]
-    if windows is not None and (isinstance(windows, bool) or not isinstance(windows, int)
-                                or windows < 0):
-        raise _Bad(f'windows is {_shown(windows)}, not a count')
-    return {
-        'id': r[0], 'sensor_id': _text(r[1], 'sensor_id', False),
-        'time_s': _real(r[2], 'time_s', low=0.0, high=MAX_TIME_S),
-        'created': _text(r[3], 'created'),
-        'method': _text(r[4], 'method'),
-        'temperature_range_c': None if low is None or high is None else [low, high],
-        'predicted_accuracy': _real(r[7], 'predicted_accuracy', optional=True, low=0.0),
-        'residual_rms': _real(r[8], 'residual_rms', optional=True, low=0.0),
-        'windows': windows,
-        'T': np.array(T).reshape(3, 3).tolist(), 'bias': _numbers(r[11], 'bias', 3),
-        'gyro_bias': _numbers(r[12], 'gyro_bias', 3, optional=True),
-        'source': _text(r[13], 'source'), 'session': _text(r[14], 'session')}
-
-
-def _window_row(r):
-    """Return one ``windows`` row as 9 floats (NaN for unknown temperature and gyro)."""
-    _text(r[1], 'sensor_id', False)
-    values = [_real(r[2], 'time_s', low=0.0, high=MAX_TIME_S),
-              _real(r[3], 'mx'), _real(r[4], 'my'), _real(r[5], 'mz'),
-              _real(r[6], 'temp_c', optional=True, low=-1e3, high=1e3),
-              _real(r[7], 'weight', positive=True, high=MAX_WEIGHT),
-              _real(r[8], 'gx', optional=True), _real(r[9], 'gy', optional=True),
-              _real(r[10], 'gz', optional=True)]
-    _text(r[11], 'session')
-    return [math.nan if v is None else v for v in values]
 
 
 class History:
@@ -336,7 +189,7 @@ class History:
         with self._write():
             tables = self._tables()             # again, now that we hold the lock
             if not tables:
-                for statement in (_SCHEMA + ';' + _SESSION_INDEXES).split(';'):
+                for statement in (SCHEMA + ';' + SESSION_INDEXES).split(';'):
                     if statement.strip():
                         self.db.execute(statement)
                 self.db.execute("INSERT INTO meta VALUES ('schema', ?)", (str(SCHEMA_VERSION),))
@@ -357,7 +210,7 @@ class History:
                                  'wrote it')
 
     def _check_tables(self, version):
-        for table, columns in _COLUMNS.items():
+        for table, columns in COLUMNS.items():
             have = {row[1] for row in self.db.execute(f'PRAGMA table_info({table})')}
             wanted = set(columns) | ({'session'} if version != '1' else set())
             if not wanted <= have:
@@ -370,7 +223,7 @@ class History:
         for table in ('calibrations', 'windows'):
             self.db.execute(f'ALTER TABLE {table} ADD COLUMN session TEXT')
             self.db.execute(f'UPDATE {table} SET session = ?', (LEGACY_SESSION,))
-        for statement in _SESSION_INDEXES.split(';'):
+        for statement in SESSION_INDEXES.split(';'):
             if statement.strip():
                 self.db.execute(statement)
         self.db.execute("UPDATE meta SET value = ? WHERE key = 'schema'", (str(SCHEMA_VERSION),))
@@ -414,7 +267,7 @@ class History:
         Record a fitted calibration (a session of its own unless ``session`` is given).
 
         :param sensor_id: the sensor's name.
-        :param cal: core.model.Calibration.
+        :param cal: core.calibration.Calibration.
         :param windows: windows the fit used (default ``cal.observations``).
         :param time_s: when, Unix time s (default now).
         :param session: session id (default a new one).
@@ -507,8 +360,9 @@ class History:
             raise InputError(f'a calibration time must be a Unix time in [0, {MAX_TIME_S:g}] s')
         return (sensor_id, time_s,
                 str(getattr(cal, 'created', '') or ''), str(cal.method),
-                _opt(trange[0]), _opt(trange[1]),
-                _opt(getattr(cal, 'predicted_accuracy', None)), _opt(cal.residual_rms),
+                finite_or_none(trange[0]), finite_or_none(trange[1]),
+                finite_or_none(getattr(cal, 'predicted_accuracy', None)),
+                finite_or_none(cal.residual_rms),
                 int(cal.observations if windows is None else windows),
                 json.dumps(T.reshape(-1).tolist()), json.dumps(bias.tolist()),
                 _vector_json(getattr(cal, 'gyro_bias', None), 3),
@@ -538,8 +392,8 @@ class History:
             raise InputError(f'window times must be Unix times in [0, {MAX_TIME_S:g}] s')
         if not (np.all(np.isfinite(weights)) and np.all(weights > 0)):
             raise InputError('window weights must be finite and positive')
-        return [(sensor_id, float(times[k]), *map(float, means[k]), _opt(temps[k]),
-                 float(weights[k]), *map(_opt, gyro[k]), session) for k in range(n)]
+        return [(sensor_id, float(times[k]), *map(float, means[k]), finite_or_none(temps[k]),
+                 float(weights[k]), *map(finite_or_none, gyro[k]), session) for k in range(n)]
 
     def _insert_windows(self, rows):
         before = self.db.total_changes
@@ -571,8 +425,8 @@ class History:
         values = []
         for r in rows:
             try:
-                values.append(_window_row(r))
-            except _Bad as err:
+                values.append(window_row(r))
+            except BadRow as err:
                 raise self._damaged('windows', r[0], err) from None
         a = np.array(values, float).reshape(-1, 9)
         return {'mean': a[:, 1:4], 'temp': a[:, 4], 'weight': a[:, 5], 'time_s': a[:, 0],
@@ -597,8 +451,8 @@ class History:
         out = []
         for r in self._rows(sql + ' ORDER BY time_s, id', args):
             try:
-                out.append(_calibration_row(r))
-            except _Bad as err:
+                out.append(calibration_row(r))
+            except BadRow as err:
                 raise self._damaged('calibrations', r[0], err) from None
         out.sort(key=lambda c: (c['time_s'], c['id']))   # a text time_s sorts apart in SQL
         return out
@@ -637,9 +491,9 @@ class History:
         scans = (('calibrations', 'SELECT id, sensor_id, time_s, created, method, temp_min_c, '
                   'temp_max_c, predicted_accuracy, residual_rms, windows, T, bias, gyro_bias, '
                   f'source, {self._session_sql()} FROM calibrations ORDER BY id',
-                  _calibration_row),
+                  calibration_row),
                  ('windows', 'SELECT id, sensor_id, time_s, mx, my, mz, temp_c, weight, gx, gy, '
-                  f'gz, {self._session_sql()} FROM windows ORDER BY id', _window_row))
+                  f'gz, {self._session_sql()} FROM windows ORDER BY id', window_row))
         more = 0
         for table, sql, parse in scans:
             try:
@@ -651,10 +505,10 @@ class History:
                 try:
                     parse(r)
                     normalise_sensor_id(r[1])
-                except (_Bad, InputError) as err:
+                except (BadRow, InputError) as err:
                     if len(problems) < MAX_PROBLEMS:
-                        problems.append(f'{table} row {r[0]} (sensor {_shown(r[1])}, '
-                                        f'session {_shown(r[-1])}): {err}')
+                        problems.append(f'{table} row {r[0]} (sensor {shown(r[1])}, '
+                                        f'session {shown(r[-1])}): {err}')
                     else:
                         more += 1
         if more:

@@ -1,7 +1,7 @@
 """
 Read the sensor noise of an ``accel-calib allan --json`` result for the simulators.
 
-The Allan result (spec section 8) carries ``white_sample_std``: per axis, the std of
+The Allan result (interface.md §8) carries ``white_sample_std``: per axis, the std of
 one sample of the white part of the noise at the recording's rate ``rate_hz``
 (``noise_density * sqrt(rate_hz)``). A simulator at another rate keeps the noise
 density, so the per-sample std it draws is ``white_sample_std * sqrt(rate / rate_hz)``.

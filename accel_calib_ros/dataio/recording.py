@@ -1,10 +1,10 @@
 """
-Read and write recordings: the spec CSV and rosbag2 (MCAP or SQLite 3) bags, as ``Samples``.
+Read and write recordings: the interface's CSV and rosbag2 (MCAP or SQLite 3) bags, as ``Samples``.
 
 ``load_samples`` (whole recording, validated) and ``iter_samples`` (pieces, for streaming
 commands) accept
 
-* a ``.csv`` file (interface spec section 2): a header row; required columns ``t``,
+* a ``.csv`` file (interface.md §2): a header row; required columns ``t``,
   ``ax``, ``ay``, ``az``; optional ``temp``, ``gx``, ``gy``, ``gz`` and ``mx``, ``my``,
   ``mz`` (µT, empty in rows without a magnetometer sample); other columns are ignored;
   names are matched case-insensitively after stripping spaces (``csv_io``);
@@ -14,14 +14,15 @@ commands) accept
   ``.db3`` storage file inside such a directory, or as a bare storage file without
   ``metadata.yaml`` (``rosbag_io``).
 
-Writers: ``csv_io.write_samples_csv`` / ``csv_io.csv_writer`` and ``rosbag_io.write_bag``.
+Writers: ``csv_write.write_samples_csv`` / ``csv_write.csv_writer`` and ``rosbag_io.write_bag``.
 Every malformed input raises ``InputError`` with a one-line message that says what is
 wrong and where (file, line, topic), so the CLI can print it and exit with status 2.
 """
 
 from pathlib import Path
 
-from .csv_io import CHUNK_ROWS, csv_writer, iter_csv, load_csv, write_samples_csv
+from .csv_io import CHUNK_ROWS, iter_csv, load_csv
+from .csv_write import csv_writer, write_samples_csv
 from .formats import ACCEPTED, BAG_SUFFIXES
 from .rosbag_io import load_bag, write_bag
 from ..core.errors import InputError
@@ -47,7 +48,7 @@ def load_samples(path, imu_topic=None, temp_topic=None, on_read=None, time_unit=
         several and none shares the Imu topic's namespace).
     :param on_read: CSV only: called with the characters read after each block (progress).
     :param time_unit: CSV only: unit of the ``t`` column ('s', 'ms', 'us', 'ns'); a
-        spacing no IMU has is refused (``csv_io.check_time_spacing``).
+        spacing no IMU has is refused (``time_units.check_time_spacing``).
     :param mag_topic: bags only: the ``sensor_msgs/msg/MagneticField`` topic (default: the
         only one, or the one beside the Imu topic).
     :return: Samples with t, accel and, when recorded, temp, gyro and mag.

@@ -33,6 +33,7 @@ import numpy as np
 
 from .atomic import fsync_directory, output_target, replace_into, temp_name
 from .formats import ACCEPTED, BAG_SUFFIXES, IMU_TYPE, listed, MAG_TYPE, one_line, TEMP_TYPE
+from ..core.constants import TESLA_PER_UT
 from ..core.errors import InputError
 from ..core.samples import Samples
 
@@ -144,10 +145,6 @@ _TEMP_COLUMNS = [0]
 
 
 _MAG_COLUMNS = [0, 1, 2]
-
-
-TESLA_TO_UT = 1e6
-"""sensor_msgs/MagneticField is in tesla; the recordings' mx my mz are in µT."""
 
 
 _CDR_LE = b'\x00\x01'
@@ -263,7 +260,7 @@ def _match_mag(reader, topic, imu_time, received, explicit, path):
     distance = np.abs((x - at[i]).astype(float))
     ok = (distance <= half) & np.all(np.isfinite(values), axis=1)
     order = np.argsort(-distance[ok], kind='stable')    # the nearest is written last
-    mag[i[ok][order]] = values[ok][order] * TESLA_TO_UT
+    mag[i[ok][order]] = values[ok][order] / TESLA_PER_UT
     return mag
 
 
@@ -393,7 +390,7 @@ def _mag_batch(samples, frame_id, ns):
         return None
     rows = np.flatnonzero(samples.mag_rows)
     doubles = np.zeros((len(rows), _TAIL_DOUBLES[MAG_TYPE]))   # covariance 0: unknown
-    doubles[:, :3] = samples.mag[rows] / TESLA_TO_UT
+    doubles[:, :3] = samples.mag[rows] * TESLA_PER_UT
     return rows, _serialized_batch(MAG_TYPE, frame_id, ns[rows], doubles)
 
 

@@ -4,7 +4,7 @@ The unit of the accelerometer columns of a recording, and its conversion to m/s�
 Everything past the reader works in SI units (REP-103), and every file the package
 writes holds m/s². A recording may hold the acceleration in
 
-* ``m/s2`` (the spec CSV and ``sensor_msgs/Imu``; the default),
+* ``m/s2`` (the interface's CSV and ``sensor_msgs/Imu``; the default),
 * ``g`` (standard gravity, 9.80665 m/s², whatever the local gravity), or
 * ``counts``: raw ADC codes, ``a = (counts - counts_offset) / counts_per_g * 9.80665``.
   ``counts_per_g`` is the sensor's nominal sensitivity (16384 for an MPU-9250 at ±2 g;
@@ -19,16 +19,15 @@ The calibration fitted on converted readings is relative to the nominal sensitiv
 A recording whose median acceleration magnitude is far from 1 g after conversion is
 in another unit than the one declared: :func:`check_magnitude` refuses it with one line
 that names the option to give. Only the accelerometer columns are converted (gyro in
-rad/s, temperature in °C as the spec says).
+rad/s, temperature in °C as interface.md says).
 """
 
 import numpy as np
 
+from ..core.constants import G0
 from ..core.errors import InputError
 from ..core.samples import Samples
 
-G0 = 9.80665
-"""Standard gravity, m/s²: one g and the factor of counts per g."""
 UNITS = ('m/s2', 'g', 'counts')
 """Units the accelerometer columns may be declared in (``--units``)."""
 PLAUSIBLE_G = (0.25, 4.0)

@@ -1,7 +1,7 @@
 """
 The library of physical effects the model-gap workflow can add to a calibration.
 
-An effect is one small class: its name (the spec's vocabulary), what it is
+An effect is one small class: its name (the interface's vocabulary), what it is
 physically, its parameters with units, when a session can see it, and its
 design-matrix columns: the change of the raw reading per unit parameter, evaluated
 at the true acceleration, the temperature and the time. The same columns drive the
@@ -29,7 +29,7 @@ the report and the JSON then pick it up.
 
 import numpy as np
 
-G0 = 9.80665
+from ..core.constants import G0
 
 
 class Effect:

@@ -371,7 +371,7 @@ class DiagnoseResult:
                 'seconds': self.still['seconds'], 'longest_s': self.still['longest_s']}
 
     def summary(self):
-        """Return the JSON-ready machine summary of spec section 3 (plus extras)."""
+        """Return the JSON-ready machine summary of interface.md §3 (plus extras)."""
         null = {'method': 'analytic F(dof, noise dof)', 'quantile': NULL_QUANTILE,
                 'dof': self.fits[-1].dof, 'noise_source': self.noise_source,
                 'noise_dof': self.noise_dof if np.isfinite(self.noise_dof) else None,

@@ -35,7 +35,7 @@ from .noise import simulated_null_gaps, window_noise, WindowNoise
 from .probes import delta_bic, residual_probes
 from .pruning import demote_partial, drop_redundant, within_slow_noise
 from .result import DiagnoseResult, MIN_EFFECT_MG
-from ..core.accel.calibration import calibrate
+from ..core.accelerometer.fit import calibrate
 from ..core.errors import CalibrationError
 from ..core.windows import DEFAULTS, detect_static_windows, MAX_WEIGHT_S
 
@@ -197,7 +197,7 @@ def _fit_accuracy_mg(windows, gravity, baseline, rate_hz):
     The first is what ``accel-calib fit`` reports; the second, without the inflation by
     the residual χ²/dof, is the practical threshold.
 
-    ``core.accel.calibration.calibrate`` with fit's weights (samples per window, capped
+    ``core.accelerometer.fit.calibrate`` with fit's weights (samples per window, capped
     at ``MAX_WEIGHT_S`` of data when the rate is known) and noise. For a ``gn`` baseline
     the share fit charges for the cross-axis terms gn leaves out is not counted: those
     terms are what this check looks for (``nonorthogonality``), so they must not raise

@@ -9,7 +9,7 @@ A thin shell around :mod:`accel_calib_ros.core`:
   the detector ``accel-calib fit`` uses (same parameters, same windows; the sample rate
   is tracked all along; the gyro joins the stillness test). At most ``max_windows``
   windows are kept.
-- after each window: one log line, the advice of :func:`core.advice.advise` (spec §5
+- after each window: one log line, the advice of :func:`core.advice.advise` (interface.md §5
   JSON) on ``~/advice`` and the progress on ``~/status`` (both std_msgs/String JSON,
   reliable, transient local, depth 1), and ``/diagnostics`` at 1 Hz.
 - ``~/calibrate`` (std_srvs/Trigger) fits ``method`` to the windows and, only if the
@@ -18,9 +18,9 @@ A thin shell around :mod:`accel_calib_ros.core`:
   of the windows; otherwise it refuses with the reason and the file stays byte-for-byte
   as it was. The model-gap check runs after the response and is published on
   ``~/status``. ``~/reset`` forgets the collected windows.
-- the whole IMU (spec §9, §10): the raw samples (bounded ring, ``max_gyro_samples``)
+- the whole IMU (interface.md §9, §10): the raw samples (bounded ring, ``max_gyro_samples``)
   and ``imu/mag`` (sensor_msgs/MagneticField, tesla; decimated, ``max_mag_samples``)
-  are kept (:class:`core.imu_stream.ImuCollector`); once the accelerometer calibration
+  are kept (:class:`core.collector.ImuCollector`); once the accelerometer calibration
   is accepted, ``~/calibrate`` also fits the gyroscope's scale and misalignment from
   the moves between the windows and the magnetometer, and stores each part that
   passes its own limit (``max_gyro_error``, ``max_mag_error``). A sensor whose data
@@ -44,13 +44,15 @@ from std_srvs.srv import Trigger
 
 from .common import (calibration_path, declare_parameters, expand_path, make_directory, Param,
                      ParameterProblem, run, unsafe_output)
-from ..core.accel.calibration import calibrate
-from ..core.accel.thermal import MIN_WINDOWS_PER_BAND
+from ..core.accelerometer.fit import calibrate
+from ..core.accelerometer.thermal import MIN_WINDOWS_PER_BAND
 from ..core.acceptance import review
 from ..core.advice import advise, coverage
+from ..core.collector import DEFAULT_MAX_MAG_SAMPLES, DEFAULT_MAX_SAMPLES, ImuCollector
+from ..core.constants import G0
 from ..core.errors import CalibrationError, InputError
-from ..core.imu import DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR
-from ..core.imu_stream import DEFAULT_MAX_MAG_SAMPLES, DEFAULT_MAX_SAMPLES, ImuCollector
+from ..core.finite import finite_or_none
+from ..core.outcomes import DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR
 from ..core.windows import DEFAULTS, OnlineStaticDetector, StaticWindows
 from ..dataio.calibration_file import save_calibration
 
@@ -79,14 +81,6 @@ LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
 def stamp_seconds(stamp):
     """builtin_interfaces/Time as float seconds."""
     return stamp.sec + stamp.nanosec * 1e-9
-
-
-def finite_or_none(value, digits=6):
-    """Round a float for JSON; None when it is None or not finite."""
-    if value is None:
-        return None
-    value = float(value)
-    return round(value, digits) if math.isfinite(value) else None
 
 
 def _accepts(function, name):
@@ -127,7 +121,7 @@ PARAMS = [
     Param('calibration_file', '',
           "YAML file written by ~/calibrate ('' = $ROS_HOME/accel_calib_ros/"
           'calibration.yaml); its directory is created'),
-    Param('gravity', 9.80665, 'local gravity magnitude, m/s2', low=9.7, high=9.9),
+    Param('gravity', G0, 'local gravity magnitude, m/s2', low=9.7, high=9.9),
     Param('band_width_c', 10.0, 'width of a temperature band, degC', low=0.1, high=100.0),
     Param('thermal', 'auto',
           'auto: temperature-band tables when >= 2 bands are filled; on; off',
@@ -371,7 +365,7 @@ class CalibrationNode(Node):
         return 'gn' if self.params['method'] == 'gn' else 'ml'
 
     def compute_advice(self):
-        """Return the spec §5 advice dict for the windows so far (numbers finite or None)."""
+        """Return the §5 advice (interface.md) for the windows so far (numbers finite or None)."""
         means, weights, _, noise = self._arrays()
         try:
             advice = advise(means, weights, noise if len(means) else 0.03,
@@ -523,7 +517,7 @@ class CalibrationNode(Node):
             response.message = f'refused: {err}'
             self.get_logger().warning(response.message)
         self._last_result = {'success': response.success, 'message': response.message,
-                             'predicted_accuracy': finite_or_none(accuracy),
+                             'predicted_accuracy': finite_or_none(accuracy, 6),
                              'max_predicted_error': self.params['max_predicted_error']}
         self._last_result.update(self._imu_report(response.success, response.message))
         self._model_gap = None
@@ -649,13 +643,13 @@ class CalibrationNode(Node):
         Never raises for them: an absent or insufficient sensor is reported (log, response,
         ``~/status``) and left out of the file.
         """
-        from ..core.imu import store
+        from ..core.outcomes import store
         p = self.params
         try:
             gyro, mag = self.imu.solve(windows, cal, p['max_gyro_error'], p['max_mag_error'],
                                        p['field_uT'] or None)
         except (CalibrationError, InputError, ValueError, np.linalg.LinAlgError) as err:
-            from ..core.imu import SensorOutcome
+            from ..core.outcomes import SensorOutcome
             gyro = SensorOutcome('gyroscope', 'insufficient', f'fit failed: {err}')
             mag = SensorOutcome('magnetometer', 'insufficient', f'fit failed: {err}')
         self._imu_result = (gyro, mag)
@@ -666,8 +660,8 @@ class CalibrationNode(Node):
         store(cal, gyro, mag)
 
     def _imu_report(self, success, message):
-        """Return the per-sensor statuses and the spec's ``gyro_*``/``mag_*`` keys of a solve."""
-        from ..core.imu import json_keys, SensorOutcome, sensors_dict
+        """Return the per-sensor statuses and the ``gyro_*``/``mag_*`` keys of a solve."""
+        from ..core.outcomes import json_keys, SensorOutcome, sensors_dict
         if not success or self._imu_result is None:
             why = 'not fitted: the accelerometer calibration was refused'
             gyro = SensorOutcome('gyroscope', 'not fitted', why, unit='relative')

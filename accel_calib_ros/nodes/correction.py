@@ -8,16 +8,16 @@ message with
 - ``linear_acceleration = L · Calibration.correct(raw, latest temperature)`` and its
   covariance the calibration's per-sample covariance (row-major, (m/s²)²);
 - ``angular_velocity = L · (raw − gyro bias)`` when the calibration carries a gyro
-  bias (spec §6; per temperature band when it has them); its covariance is what is
+  bias (interface.md §6; per temperature band when it has them); its covariance is what is
   left: the driver's noise covariance as it came. Without a gyro bias the rate passes
   through and, when the driver reports a covariance, the datasheet zero-rate offset
   (:data:`UNCALIBRATED_GYRO_BIAS_STD`)² is added to its diagonal;
-- with a ``gyro`` part (spec §9) the rate is ``L · Tg⁻¹ · (raw − bias)`` and a known
+- with a ``gyro`` part (interface.md §9) the rate is ``L · Tg⁻¹ · (raw − bias)`` and a known
   driver covariance C becomes ``L Tg⁻¹ C Tg⁻ᵀ Lᵀ`` plus what the calibration's own
   uncertainty adds at that rate: ``(predicted accuracy · |ω|)² / 3`` per axis (the RMS
   relative rate error over all directions, spread over the three axes); an unknown
   driver covariance (all zeros, or ``[0] = -1``) passes as it came;
-- with a ``magnetometer`` part (spec §10), ``imu/mag`` (sensor_msgs/MagneticField,
+- with a ``magnetometer`` part (interface.md §10), ``imu/mag`` (sensor_msgs/MagneticField,
   tesla) is corrected into ``imu/mag_corrected`` (tesla, same header and frame):
   ``L · Rᵀ · T⁻¹ · (raw − hard iron)``, covariance the driver's mapped the same way
   (or, when it reports none, the fit's per-sample noise) plus
@@ -59,6 +59,7 @@ from sensor_msgs.msg import Imu, MagneticField, Temperature
 from std_srvs.srv import Trigger
 
 from .common import calibration_path, declare_parameters, Param, run, Throttled
+from ..core.constants import TESLA_PER_UT
 from ..core.errors import CalibrationError, InputError
 from ..dataio.calibration_file import load_calibration, save_calibration
 
@@ -71,8 +72,6 @@ QUEUE_DEPTH = 100
 """Subscription and publisher queue depth: 0.1 s at 1 kHz, rides out a file reload."""
 LEVEL_BUFFER = 5000
 """Raw samples kept for ``~/level`` (5 s at 1 kHz)."""
-TESLA_PER_UT = 1e-6
-"""sensor_msgs/MagneticField carries tesla; the calibration file µT."""
 WARN_PERIOD_S = 30.0
 """Throttle of the repeated warnings (temperature outside the calibrated range)."""
 
@@ -127,7 +126,7 @@ class Corrector:
         self._imu_parts(cal)
 
     def _imu_parts(self, cal):
-        """Precompute the gyroscope T and the magnetometer correction (spec §9, §10)."""
+        """Precompute the gyroscope T and the magnetometer correction (interface.md §9, §10)."""
         self.gyro_M = None          # L Tg⁻¹, or None without a gyro T
         self.gyro_rate_var = 0.0    # (predicted accuracy)² / 3: variance per axis per |ω|²
         self.mag_M = None           # L Rᵀ T⁻¹ of the magnetometer, or None

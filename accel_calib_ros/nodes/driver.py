@@ -74,7 +74,7 @@ JITTER_WARN_US = 100.0
 """Device clock jitter above which the driver says once that the stamps carry it."""
 
 PARAMS = [
-    Param('port', '/dev/ttyUSB0', 'serial device path (a change reopens the port)',
+    Param('port', '/dev/ttyACM0', 'serial device path (a change reopens the port)',
           empty_ok=False),
     Param('baud', 1_000_000, 'serial baud rate; the firmware default is 1000000 (a change '
           'reopens the port)', low=300, high=12_000_000),

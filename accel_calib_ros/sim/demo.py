@@ -1,7 +1,7 @@
 """
 End-to-end demo on a simulated sensor: ``python -m accel_calib_ros.sim.demo``.
 
-A virtual MPU9250 streams the spec's serial frames on a pseudo-terminal (with a
+A virtual MPU9250 streams the interface's serial frames on a pseudo-terminal (with a
 little byte corruption), and the three nodes run as separate processes on real
 rclpy over DDS (a private domain, localhost only):
 
@@ -24,7 +24,7 @@ registers replay the same kind of simulated session at 1 kHz, over a pty at 1 MB
 
     emulated MPU-9250 -> firmware on emulated Uno (pty) -> mpu9250_driver -> ...
 
-This needs a source checkout (the board is a GPL-3 test program under test/hil/, never
+This needs a source checkout (the board is a GPL-3 test program under test/firmware/hil/, never
 installed) and the Debian packages of docs/firmware.md (installed when missing, as root).
 """
 
@@ -40,6 +40,8 @@ import time
 
 import numpy as np
 import yaml
+
+from ..core.constants import G0
 
 
 def _env():
@@ -176,12 +178,12 @@ def _board_source(args, work, env, truth_path):
     :raises RuntimeError: not a source checkout, or the toolchain is missing (one line).
     """
     from .device import _write_truth, add_arguments, VirtualSensor
-    from ..dataio.wire.units import MagConverter
+    from ..dataio.wire.conversion import MagConverter
     root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    harness_src = os.path.join(root, 'test', 'hil', 'mpu_board.c')
+    harness_src = os.path.join(root, 'test', 'firmware', 'hil', 'mpu_board.c')
     firmware = os.path.join(root, 'firmware')
     if not os.path.exists(harness_src) or not os.path.exists(os.path.join(firmware, 'Makefile')):
-        raise RuntimeError('--board needs a source checkout (firmware/ and test/hil/)')
+        raise RuntimeError('--board needs a source checkout (firmware/ and test/firmware/hil/)')
     for cmd, what in ((['sh', os.path.join(firmware, 'tools', 'ensure-toolchain.sh'), 'hil'],
                        'toolchain'), (['make', '-s', '-C', firmware], 'make firmware')):
         run = subprocess.run(cmd, capture_output=True, text=True)
@@ -359,10 +361,10 @@ def _report_field(client, truth):
 
 def run_offline_demo(args):
     """Without ROS: simulate a session, fit all three sensors, show the correction."""
-    from ..core.accel.calibration import calibrate
-    from ..core.imu import solve_gyro, solve_magnetometer
-    from ..core.simulate import (ak8963_like, EarthField, mpu9250_like, random_directions,
-                                 random_poses, simulate_session, with_gyro_errors)
+    from .sensor import ak8963_like, EarthField, mpu9250_like, with_gyro_errors
+    from .session import random_directions, random_poses, simulate_session
+    from ..core.accelerometer.fit import calibrate
+    from ..core.outcomes import solve_gyro, solve_magnetometer
     from ..core.windows import detect_static_windows
     rng = np.random.default_rng(args.seed)
     sensor = mpu9250_like(rng)
@@ -372,7 +374,7 @@ def run_offline_demo(args):
     session = simulate_session(sensor, random_poses(args.poses, rng), rng, hold_s=args.hold,
                                move_s=args.move, earth_field=earth, tremor_deg=0.3)
     windows = detect_static_windows(session.samples)
-    fresh = 9.80665 * random_directions(200, rng)
+    fresh = G0 * random_directions(200, rng)
     raw = sensor.distort(fresh)
     print(f'simulated {args.poses} hand-held poses (accelerometer, gyroscope with scale and '
           f'misalignment errors, AK8963-like magnetometer), {len(windows)} static windows found')

@@ -11,6 +11,7 @@ from collections import deque
 import numpy as np
 
 from .offline import DEFAULTS, still_runs
+from ..constants import G0
 
 
 class _FloorHistogram:
@@ -136,7 +137,7 @@ class OnlineStaticDetector:
                  threshold_factor=DEFAULTS['threshold_factor'], trim_s=DEFAULTS['trim_s'],
                  floor_quantile=DEFAULTS['floor_quantile'], use_gyro=True,
                  max_rotation_rad_s=DEFAULTS.get('max_rotation_rad_s', 0.0349066),
-                 rate_memory=256, max_run_s=30.0, floor_slack=1.5, gravity=9.80665,
+                 rate_memory=256, max_run_s=30.0, floor_slack=1.5, gravity=G0,
                  warmup_s=5.0):
         self.window_s, self.min_duration_s, self.trim_s = window_s, min_duration_s, trim_s
         self.factor, self.quantile = threshold_factor, floor_quantile

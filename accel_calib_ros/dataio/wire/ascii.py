@@ -1,5 +1,5 @@
 """
-The ASCII line format for hobby firmware (interface spec section 1, last paragraph).
+The ASCII line format for hobby firmware (interface.md §1, last paragraph).
 
 One sample per line: ``ax,ay,az,temp,gx,gy,gz`` raw counts, optionally led by ``t_us``.
 """

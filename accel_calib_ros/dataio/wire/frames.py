@@ -1,5 +1,5 @@
 """
-The binary data frames of interface spec section 1 (version 1) and 1b (version 2).
+The binary data frames of interface.md §1 (version 1) and 1b (version 2).
 
 Version 1, 22 bytes::
 

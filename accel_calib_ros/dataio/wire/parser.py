@@ -9,10 +9,10 @@ never raises: bad bytes are skipped and counted, and an unexpected error inside 
 import collections
 import heapq
 
+from .conversion import TEMP_FORMULAS
 from .crc import crc16, CRC8_TABLE
 from .frames import BLOCK, HEAD_V1, HEAD_V2, INT16_MAX, INT16_MIN, MAG, RawFrame
 from .info import decode_info
-from .units import TEMP_FORMULAS
 
 TEMP_PLAUSIBLE_C = (-45.0, 95.0)
 """Temperatures a working sensor can report (operating range -40..85 °C plus margin)."""

@@ -1,0 +1,140 @@
+"""The guide's pieces without a terminal: hold tracking, drawing, serial input, usage."""
+
+import os
+import time
+
+from accel_calib_ros.cli import main
+from accel_calib_ros.cli.guide import board_drawing
+from accel_calib_ros.cli.guide_session import GuideSession
+from accel_calib_ros.cli.guide_sources import SerialSource
+from accel_calib_ros.core.advice import CANDIDATE_POSES
+from accel_calib_ros.dataio.wire import encode_frame
+from accel_calib_ros.sim.sensor import mpu9250_like
+from accel_calib_ros.sim.session import simulate_session
+import numpy as np
+import pytest
+
+
+def test_drawing_names_the_side_up_and_each_axis():
+    flat = board_drawing([0, 0, 1])
+    assert 'chip side up' in flat and 'z axis ↑ +90° up' in flat
+    assert 'upside down' in board_drawing([0, 0, -1])
+    edge = board_drawing([1, 1, 0])
+    assert '+x +y sides up' in edge and 'tilted 45°' in edge and 'z axis → level' in edge
+    corner = board_drawing([-1, 1, 1])
+    assert '-x +y +z sides up' in corner and 'x axis ↘ 35° down' in corner
+    for direction, _ in CANDIDATE_POSES:
+        assert len(board_drawing(direction).splitlines()) >= 8
+
+
+def test_one_window_per_held_pose_and_the_advice_follows():
+    rng = np.random.default_rng(0)
+    sensor = mpu9250_like(rng)
+    directions = np.array([d for d, _ in CANDIDATE_POSES[:8]])
+    session = simulate_session(sensor, directions, rng, hold_s=5.0, move_s=1.5)
+    s = session.samples
+    guide = GuideSession(100.0, hold_s=2.0)
+    names = []
+    for k in range(0, len(s.t), 37):            # chunks, as they arrive from a device
+        if guide.update(s.t[k:k + 37], s.accel[k:k + 37], s.temp[k:k + 37]):
+            names.append(guide.advice.next_pose.name)
+    assert len(guide.windows) == 8              # held 5 s each, captured once each
+    means = np.array([w['mean'] for w in guide.windows])
+    u = means / np.linalg.norm(means, axis=1, keepdims=True)
+    assert np.all(np.einsum('ij,ij->i', u, directions) > np.cos(np.radians(10)))
+    assert names[-1] not in [n for _, n in CANDIDATE_POSES[:8]]
+    status = guide.status()
+    assert status['windows'] == 8 and status['state'] == 'captured'
+
+
+def test_serial_source_reads_spec_frames_from_a_port():
+    master, slave = os.openpty()
+    try:
+        source = SerialSource(os.ttyname(slave), 1000000)
+        counts = [(0, 0, 16384, 333, 131, 0, -131)] * 7 + [(16384, 0, 0, -333, 0, 0, 0)]
+        data = b''.join(encode_frame(k, 1000 + 1000 * k, c) for k, c in enumerate(counts))
+        bad = 2 * 22 + 9                                         # a data byte of frame 2
+        os.write(master, b'\x00\xa5' + data[:bad] + bytes([data[bad] ^ 0xff]) + data[bad + 1:])
+        got = [np.zeros(0), np.zeros((0, 3)), np.zeros(0)]
+        for _ in range(50):
+            t, a, temp = source.read(None)
+            got = [np.concatenate([got[0], t]), np.vstack([got[1], a]),
+                   np.concatenate([got[2], temp])]
+            if len(got[0]) >= 6:
+                break
+        source.close()
+    finally:
+        os.close(master)
+        os.close(slave)
+    t, a, temp = got
+    assert len(t) >= 6                       # the damaged frame (and its neighbour) dropped
+    np.testing.assert_allclose(a[-1], [9.80665, 0, 0], atol=1e-9)
+    np.testing.assert_allclose(temp[-1], 21.0 - 333 / 333.87, atol=1e-9)
+    assert np.all(np.diff(t) >= 0)
+
+
+@pytest.mark.parametrize('argv, words', [
+    (['--port', '/nonexistent/ttyUSB9'], 'cannot open'),
+    (['--simulate', '-o', 'same.yaml', '--record', 'same.yaml'], 'different files'),
+    (['--simulate', '--speed', '0'], 'must be positive'),
+])
+def test_guide_bad_usage_is_one_line_and_exit_2(tmp_path, capsys, monkeypatch, argv, words):
+    monkeypatch.chdir(tmp_path)
+    assert main(['guide', *argv]) == 2
+    err = capsys.readouterr().err
+    assert words in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / 'same.yaml').exists()
+
+
+def test_ros_source_receives_imu_and_temperature_from_topics():
+    rclpy = pytest.importorskip('rclpy')
+    from accel_calib_ros.cli.guide_sources import RosSource
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import Imu, Temperature
+    source = RosSource('guide_test/imu', 'guide_test/temperature')
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    node = rclpy.create_node('guide_test_publisher', context=ctx)
+    try:
+        imu_pub = node.create_publisher(Imu, 'guide_test/imu', qos_profile_sensor_data)
+        temp_pub = node.create_publisher(Temperature, 'guide_test/temperature',
+                                         qos_profile_sensor_data)
+        got = []
+        deadline = time.monotonic() + 20.0
+        k = 0
+        while len(got) < 20 and time.monotonic() < deadline:
+            temp_pub.publish(Temperature(temperature=31.5))
+            msg = Imu()
+            msg.header.stamp.sec, msg.header.stamp.nanosec = 100 + k // 100, (k % 100) * 10 ** 7
+            msg.linear_acceleration.x, msg.linear_acceleration.z = 0.5, 9.8
+            imu_pub.publish(msg)             # 20 Hz: real time, never a burst
+            k += 1
+            t, a, temp = source.read(None)
+            got.extend(zip(t, a, temp))
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+        source.close()
+    assert len(got) >= 20
+    t, a, temp = (np.array(v) for v in zip(*got))
+    np.testing.assert_allclose(a[-1], [0.5, 0.0, 9.8])
+    assert temp[-1] == 31.5 and np.all(np.diff(t) > 0)
+
+
+@pytest.mark.parametrize('argv, words', [
+    (['--simulate', '--seed', '-1'], '--seed'),
+    (['--simulate', '--rate', '1e308'], '--rate'),
+    (['--simulate', '--speed', '1e308'], '--speed'),
+    (['--simulate', '--temp', 'nan'], '--temp'),
+    (['--simulate', '--gravity', '1e308'], '--gravity'),
+    (['--port', 'same.yaml', '-o', 'same.yaml'], 'destroy the input'),
+    (['--port', 'same.yaml', '--record', './same.yaml'], 'destroy the input'),
+])
+def test_guide_out_of_range_options_are_usage_errors(tmp_path, capsys, monkeypatch,
+                                                     argv, words):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / 'same.yaml').write_text('keep me\n')
+    assert main(['guide', '--timeout', '1', *argv]) == 2
+    err = capsys.readouterr().err
+    assert words in err and len(err.strip().splitlines()) == 1
+    assert (tmp_path / 'same.yaml').read_text() == 'keep me\n'
