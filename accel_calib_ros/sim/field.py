@@ -1,7 +1,7 @@
 """
 A robot in the field: still and moving, turning in place, knocked, warm, for months.
 
-Built on the calibration simulator's sensor (``core.simulate``: the accelerometer's
+Built on the calibration simulator's sensor (``sim.sensor``: the accelerometer's
 T, bias, noise, quantisation and temperature coefficient, the gyroscope's T, bias and
 noise, the AK8963's iron and noise) and a calibration fitted to it the way
 ``accel-calib fit`` would (:func:`field_rig`). A day is a list of segments:
@@ -31,12 +31,13 @@ import math
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from ..core.accel.calibration import calibrate
-from ..core.model import MagnetometerPart
+from .sensor import ak8963_like, EarthField, mpu9250_like, with_gyro_errors
+from .session import random_directions, simulate_static_windows
+from ..core.accelerometer.fit import calibrate
+from ..core.calibration import MagnetometerPart
+from ..core.constants import G0
 from ..core.monitor.blocks import Block
 from ..core.monitor.field import corrected_arrays
-from ..core.simulate import (ak8963_like, EarthField, G0, mpu9250_like, random_directions,
-                             simulate_static_windows, with_gyro_errors)
 
 GYRO_DENSITY = math.radians(0.01)
 """MPU-9250 gyro noise density, rad/s/√Hz (0.01 °/s/√Hz)."""

@@ -69,7 +69,7 @@ class FieldMonitor:
     """
     Still periods, gyro bias and calibration health of one calibration in use.
 
-    :param cal: the Calibration applied to the stream (``core.model``).
+    :param cal: the Calibration applied to the stream (``core.calibration``).
     :param settings: :class:`MonitorSettings`.
     """
 

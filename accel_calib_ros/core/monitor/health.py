@@ -45,8 +45,9 @@ import math
 import numpy as np
 
 from .stats import chi2_quantile, chi2_survival
+from ..constants import G0
+from ..finite import finite_or_none
 
-G0 = 9.80665
 MG = G0 * 1e-3
 """One milli-g, m/s²."""
 RULE_OUT = 0.01
@@ -57,7 +58,7 @@ class ErrorModel:
     """
     What a calibration says about its own error at rest, per orientation.
 
-    :param cal: a Calibration (``core.model``): T, gravity, covariance,
+    :param cal: a Calibration (``core.calibration``): T, gravity, covariance,
         predicted_accuracy, residual_rms, temperature_range_c, thermal, level_rotation().
     """
 
@@ -155,7 +156,7 @@ class HealthResult:
         """Return a JSON-ready dict (NaN and infinities as None)."""
         def clean(v):
             if isinstance(v, float):
-                return v if math.isfinite(v) else None
+                return finite_or_none(v)
             if isinstance(v, (list, tuple)):
                 return [clean(x) for x in v]
             return v

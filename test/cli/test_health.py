@@ -6,13 +6,21 @@ from accel_calib_ros.cli import main
 from accel_calib_ros.cli.common import MAX_MESSAGE
 from accel_calib_ros.core.samples import Samples
 from accel_calib_ros.dataio.calibration_file import save_calibration
-from accel_calib_ros.dataio.csv_io import write_samples_csv
+from accel_calib_ros.dataio.csv_write import write_samples_csv
 from accel_calib_ros.sim import field as F
 import numpy as np
 import pytest
-from test_file_inputs import HOSTILE
 
 MG = 9.80665e-3
+HOSTILE = {
+    'first field 200 KiB': 't' * 200_000 + ',ax,ay,az\n0,0,0,9.8\n',
+    'no newline at all': 'x' * 300_000,
+    'json pretty': '{\n  "t": [0, 1],\n  "ax": [0, 0]\n}',
+    'quote never closed': 't,ax,ay,az\n"0,0,0,9.8\n' + '1,0,0,9.8\n' * 1000,
+    'nul bytes': 't,ax,ay,az\n0,0\x00,0,9.8\n',
+    'control characters': 't,ax,ay,az\n\x1b[2J\x1b]0;owned\x07,0,0,9.8\n',
+}
+"""Hostile files (as test/dataio/test_file_inputs.py has them)."""
 
 
 def run(capsys, *argv):
