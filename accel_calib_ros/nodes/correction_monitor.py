@@ -2,7 +2,8 @@
 The correction node's field monitor (issue 24): ROS plumbing around ``core.monitor``.
 
 The node appends each corrected sample to a list (the rate before the monitor's bias is
-removed) and calls :meth:`NodeMonitor.flush` every ``block_n`` samples: one
+removed) and calls :meth:`NodeMonitor.flush` every ``block_n`` samples (``BLOCK_S`` of
+stamps at the rate the stamps show): one
 :class:`~accel_calib_ros.core.monitor.Block` goes to the
 :class:`~accel_calib_ros.core.monitor.FieldMonitor` and :attr:`NodeMonitor.bias` (the
 residual gyro bias the node subtracts) is refreshed. Here also:
@@ -130,9 +131,10 @@ class NodeMonitor:
         self.node = node
         self.lock = threading.Lock()
         self.monitor = None             # FieldMonitor of the calibration in use, or None
+        self.active = False             # the Imu path feeds it (a monitor, a part on)
         self.buf = []                   # (ax, ay, az, gx, gy, gz, temp) since the last block
         self.mag = []                   # corrected field samples (µT) since the last block
-        self.block_n = 100              # samples per block (follows the measured rate)
+        self.block_n = 10               # samples per block (follows the stamps: BLOCK_S)
         self.bias = (0.0, 0.0, 0.0)     # residual gyro bias to subtract, rad/s
         self._t_last = None             # stream time of the end of the last block, s
         self._clock0 = None             # (stamp, monotonic) when stamps do not advance
@@ -160,6 +162,7 @@ class NodeMonitor:
             self.monitor = None if cal is None else FieldMonitor(cal, settings_from(
                 self.node.params))
             self.bias = (0.0, 0.0, 0.0)
+            self._refresh()
         self.publish_health(force=True)
 
     def apply(self, changes):
@@ -170,11 +173,16 @@ class NodeMonitor:
             if self.monitor is not None:
                 self.monitor.apply_settings(settings_from(self.node.params))
                 self.bias = tuple(float(v) for v in self.monitor.gyro_bias)
+            self._refresh()
 
-    def set_rate(self, rate_hz):
-        """Follow the measured sample rate (samples per block)."""
-        if rate_hz and math.isfinite(rate_hz):
-            self.block_n = max(int(round(rate_hz * BLOCK_S)), 2)
+    def _refresh(self):
+        """Say whether the Imu path feeds the monitor (under the lock)."""
+        params = self.node.params
+        self.active = self.monitor is not None and (params['gyro_bias_at_rest']
+                                                    or params['health_check'])
+        if not self.active:
+            self.buf, self.mag = [], []
+            self._t_last = None
 
     # -- the stream ----------------------------------------------------------------------
     def flush(self, stamp):
@@ -185,6 +193,9 @@ class NodeMonitor:
         t_start, self._t_last = self._t_last, t_end
         if t_start is None or len(rows) < 2:
             return
+        if t_end > t_start:         # the next block spans BLOCK_S at this rate
+            self.block_n = min(max(int(round(len(rows) * BLOCK_S / (t_end - t_start))), 2),
+                               10000)
         try:
             data = np.array(rows, float)
             temp = data[:, 6]
@@ -205,8 +216,8 @@ class NodeMonitor:
                 if np.all(np.isfinite(bias)):
                     self.bias = (float(bias[0]), float(bias[1]), float(bias[2]))
             self._problem = ''
-        except (ValueError, FloatingPointError, np.linalg.LinAlgError) as err:
-            # The node never dies of the monitor: keep the last estimate and say so.
+        except Exception as err:      # noqa: B902 - the node never dies of the monitor:
+            # keep the last estimate (and the published stream) and say so.
             if not self._problem:
                 self.node.get_logger().error(f'field monitor: {err}; keeping the last gyro '
                                              'bias estimate')
@@ -312,6 +323,14 @@ class NodeMonitor:
         if result is self._published and not force:
             return
         self._published = result
+        try:
+            text = self._health_json(result, gyro)
+        except (ValueError, TypeError) as err:     # never a non-finite number on a topic
+            self._problem = f'~/health not published: {err}'
+            return
+        self.health_pub.publish(String(data=text))
+
+    def _health_json(self, result, gyro):
         body = {'node': self.node.get_fully_qualified_name(),
                 'calibration_file': self.node.path}
         if result is None:
@@ -320,7 +339,7 @@ class NodeMonitor:
         else:
             body.update(result.to_dict())
             body['gyro_bias_at_rest'] = gyro
-        self.health_pub.publish(String(data=json.dumps(body, allow_nan=False)))
+        return json.dumps(body, allow_nan=False)
 
     def statuses(self):
         """Return the two DiagnosticStatus of the monitor (gyro bias, health)."""
