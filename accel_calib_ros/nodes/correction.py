@@ -25,7 +25,19 @@ message with
   published there, and ``/diagnostics`` says whether ``imu/mag`` arrives;
 - ``L`` the level trim (``level_roll_pitch_rad`` in the file, measured by ``~/level``),
   identity without one. The orientation and its covariance pass through untouched (the
-  driver sends identity with ``orientation_covariance[0] = -1``), as does the header.
+  driver sends identity with ``orientation_covariance[0] = -1``), as does the header,
+  except the frame_id while a trim is applied: the axes are the levelled ones, so
+  ``imu/corrected`` and ``imu/mag_corrected`` carry ``level_frame_id`` (default: the
+  raw frame_id + ``_level``);
+- the field monitor (issue 24, :mod:`.correction_monitor`, ``core.monitor``): in still
+  periods the gyro bias change is re-estimated and subtracted from ``angular_velocity``,
+  and the calibration is checked against gravity and its temperature range
+  (``/diagnostics``, ``~/health``, ``~/reset_gyro_bias``).
+
+The math is :class:`core.correction.Corrector` (the filter); this module is the node:
+parameters, messages, diagnostics. One node per process: the Imu path is a callback
+group of its own that :func:`.common.run` spins on an executor of its own, sharing the
+node with the executor of everything else, so a ``__node:=`` remap names one node.
 
 Hot reload: ``calibration_file`` is checked every ``reload_period_s``; when its
 (mtime, size, inode) changes it is read with the one validating loader

@@ -221,3 +221,15 @@ def test_remapped_node_name_names_exactly_one_node(tmp_path):
         code, log = stop_node(proc)
     assert 'already registered' not in log, log
     assert code in (0, -2), log
+
+
+def test_config_file_holds_every_parameter_with_its_default():
+    import os
+    import yaml
+    from accel_calib_ros.nodes.correction import PARAMS as NODE_PARAMS
+    path = os.path.join(os.path.dirname(__file__), '..', '..', 'config', 'correction.yaml')
+    with open(path, encoding='utf-8') as f:
+        values = yaml.safe_load(f)['/**']['ros__parameters']
+    for spec in NODE_PARAMS:
+        assert spec.name in values, spec.name
+        assert spec.check(values[spec.name]) == spec.default, spec.name
