@@ -70,7 +70,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data,
 from sensor_msgs.msg import Imu, MagneticField, Temperature
 from std_srvs.srv import Trigger
 
-from .common import calibration_path, declare_parameters, Param, run, Throttled
+from .common import calibration_path, declare_parameters, Param, ParameterProblem, run, Throttled
 from .correction_monitor import NodeMonitor, PARAMS as MONITOR_PARAMS
 from ..core.constants import TESLA_PER_UT
 from ..core.correction import (Corrector, UNCALIBRATED_COVARIANCE,  # noqa: F401 - re-exported
@@ -93,6 +93,14 @@ def file_key(path):
     except OSError:
         return None
     return st.st_mtime_ns, st.st_size, st.st_ino
+
+
+def check_frame_id(value, name='level_frame_id'):
+    """Refuse a frame_id tf2 would not take (a leading '/', blanks); '' is the default."""
+    if value and (value.startswith('/') or any(c.isspace() for c in value)
+                  or not value.isprintable()):
+        raise ParameterProblem(f'parameter {name!r} must be a tf2 frame id (no leading '
+                               f"'/', no blanks), got {value!r}")
 
 
 PARAMS = [
@@ -121,6 +129,7 @@ class CorrectionNode(Node):
     def __init__(self, **kwargs):
         super().__init__('accel_correction', **kwargs)
         self.params = declare_parameters(self, PARAMS, self._on_params)
+        check_frame_id(self.params['level_frame_id'])
         self.path = calibration_path(self.params['calibration_file'])
         self.corrector = Corrector(None)
         self.temperature = float('nan')
@@ -176,6 +185,7 @@ class CorrectionNode(Node):
             self.destroy_timer(self._reload_timer)
             self._reload_timer = self.create_timer(changes['reload_period_s'], self._tick)
         if 'level_frame_id' in changes:
+            check_frame_id(changes['level_frame_id'])
             self._frames = ('', '')
         if set(changes) & {p.name for p in MONITOR_PARAMS} | {'temperature_margin_c'}:
             self.monitor.apply(changes)

@@ -233,3 +233,11 @@ def test_config_file_holds_every_parameter_with_its_default():
     for spec in NODE_PARAMS:
         assert spec.name in values, spec.name
         assert spec.check(values[spec.name]) == spec.default, spec.name
+
+
+def test_a_frame_id_tf2_would_refuse_is_refused(tmp_path, rig_factory):  # noqa: F811
+    rig = rig_factory(tmp_path / 'missing.yaml')
+    for value in ('/imu_level', 'imu level', 'imu\nlevel', 5):
+        (r,) = rig.node.set_parameters([Parameter('level_frame_id', value=value)])
+        assert not r.successful and ('level_frame_id' in r.reason or 'type' in r.reason), value
+    assert rig.node.params['level_frame_id'] == ''
