@@ -149,7 +149,9 @@ class NodeMonitor:
         node.declare_parameter(ESTIMATE_PARAM, [0.0, 0.0, 0.0], ParameterDescriptor(
             name=ESTIMATE_PARAM, type=ParameterType.PARAMETER_DOUBLE_ARRAY, read_only=True,
             description='the gyro bias change the node subtracts now (estimated at rest), '
-                        'rad/s, x y z of the corrected frame; reset with ~/reset_gyro_bias'))
+                        'rad/s, x y z of the corrected frame; reset with ~/reset_gyro_bias; '
+                        'reported by the node: a value given at start-up is ignored'),
+            ignore_override=True)
         self._subscribe_stationary()
 
     # -- the calibration and the parameters ----------------------------------------------
