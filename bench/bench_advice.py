@@ -23,9 +23,9 @@ import os
 import tempfile
 
 from accel_calib_ros.core.advice import advise, CANDIDATE_DIRECTIONS
+from accel_calib_ros.sim.motion import simulate_session
 from accel_calib_ros.sim.person import closed_loop, Person, tilt
 from accel_calib_ros.sim.sensor import mpu9250_like
-from accel_calib_ros.sim.session import simulate_session
 import numpy as np
 
 PLAN = CANDIDATE_DIRECTIONS[[0, 1, 2, 3, 4, 5] + list(range(18, 26)) + list(range(6, 18))]

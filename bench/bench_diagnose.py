@@ -26,9 +26,9 @@ from accel_calib_ros.core.errors import CalibrationError
 from accel_calib_ros.core.windows import detect_static_windows
 from accel_calib_ros.modelgap import diagnose, diagnose_windows, held_out_check
 from accel_calib_ros.modelgap.effects import EFFECTS
+from accel_calib_ros.sim.motion import (random_directions, simulate_session,
+                                        simulate_static_windows)
 from accel_calib_ros.sim.sensor import G0, mpu9250_like, with_datasheet_effect
-from accel_calib_ros.sim.session import (random_directions, simulate_session,
-                                         simulate_static_windows)
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), '..', 'test'))

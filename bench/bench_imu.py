@@ -23,8 +23,8 @@ from accel_calib_ros.core.gyroscope.fit import fit_gyro
 from accel_calib_ros.core.gyroscope.moves import integrate
 from accel_calib_ros.core.magnetometer.fit import canonical, correct_field, fit_magnetometer
 from accel_calib_ros.core.windows import detect_static_windows
+from accel_calib_ros.sim import motion as sim_motion
 from accel_calib_ros.sim import sensor as simulate
-from accel_calib_ros.sim import session as sim_session
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -38,8 +38,8 @@ def session(seed, poses, tremor_deg, full_scale=None, move_s=1.5):
     sensor = simulate.with_gyro_errors(simulate.mpu9250_like(rng),
                                        np.random.default_rng(seed + 1000), full_scale)
     sensor.magnetometer = simulate.ak8963_like(np.random.default_rng(seed + 500))
-    return sim_session.simulate_session(sensor, sim_session.random_poses(poses, rng), rng,
-                                        move_s=move_s, tremor_deg=tremor_deg)
+    return sim_motion.simulate_session(sensor, sim_motion.random_poses(poses, rng), rng,
+                                       move_s=move_s, tremor_deg=tremor_deg)
 
 
 def rate_error(T_fit, T_true):
@@ -52,7 +52,7 @@ def field_error(correct, sess, n=20000):
     """RMS error of ``correct(raw)`` against the field over directions on the sphere, µT."""
     mag = sess.sensor.magnetometer
     T, R, field_uT = canonical(mag.T, mag.R, sess.earth_field.field_uT)
-    u = sim_session.random_directions(n, np.random.default_rng(1))
+    u = sim_motion.random_directions(n, np.random.default_rng(1))
     raw = (field_uT * u) @ (T @ R).T + mag.hard_iron
     return float(np.sqrt(np.mean(np.sum((correct(raw) - field_uT * u) ** 2, axis=1))))
 
@@ -174,7 +174,7 @@ def through_cli(sessions, poses):
                 continue
             m = truth['magnetometer']
             T, R, field_uT = canonical(m['T'], m['R'], truth['earth_field']['field_uT'])
-            u = sim_session.random_directions(5000, np.random.default_rng(1))
+            u = sim_motion.random_directions(5000, np.random.default_rng(1))
             raw = (field_uT * u) @ (T @ R).T + m['hard_iron_uT']       # the fit's convention
             est = correct_field(raw, d['mag_T'], d['mag_hard_iron_uT'], d['mag_R'])
             rows.append({

@@ -18,8 +18,8 @@ import sys
 import time
 
 from accel_calib_ros.core.windows import DEFAULTS, detect_static_windows, OnlineStaticDetector
+from accel_calib_ros.sim.motion import random_directions, simulate_session
 from accel_calib_ros.sim.sensor import mpu9250_like
-from accel_calib_ros.sim.session import random_directions, simulate_session
 import numpy as np
 
 SHORT = {'window_s': 0.25, 'trim_s': 0.1, 'min_duration_s': 0.3}

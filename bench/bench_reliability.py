@@ -72,7 +72,7 @@ def make_files(folder):
     """Write the adversarial data files; return a dict name -> path."""
     from accel_calib_ros.cli import main
     from accel_calib_ros.sim import sensor as sim
-    from accel_calib_ros.sim import session as sim_session
+    from accel_calib_ros.sim import motion as sim_motion
     sys.path.insert(0, os.path.join(os.path.dirname(__file__), '..', 'test'))
     import peer_data
     f = {}
@@ -93,7 +93,7 @@ def make_files(folder):
         out.write(b't,ax,ay,az\n0,\xff\xfe,0,9.8\n')
     rng = np.random.default_rng(0)
     sensor = sim.mpu9250_like(rng)
-    one = sim_session.simulate_session(sensor, np.array([[0.0, 0.0, 1.0]]), rng, hold_s=20)
+    one = sim_motion.simulate_session(sensor, np.array([[0.0, 0.0, 1.0]]), rng, hold_s=20)
     f['one_pose'] = os.path.join(folder, 'one_pose.csv')
     peer_data.to_spec_csv(one.samples, f['one_pose'])
     v = rng.normal(size=(30, 3))
@@ -101,16 +101,16 @@ def make_files(folder):
     v /= np.linalg.norm(v, axis=1, keepdims=True)
     ang = np.radians(rng.uniform(0, 25, 30))
     tilt = np.column_stack([v[:, :2] * np.sin(ang)[:, None], np.cos(ang)])
-    s = sim_session.simulate_session(sensor, tilt, rng, hold_s=2)
+    s = sim_motion.simulate_session(sensor, tilt, rng, hold_s=2)
     f['tilt_only'] = os.path.join(folder, 'tilt_only.csv')
     peer_data.to_spec_csv(s.samples, f['tilt_only'])
-    s = sim_session.simulate_session(sensor, sim_session.random_directions(20, rng), rng, hold_s=3)
+    s = sim_motion.simulate_session(sensor, sim_motion.random_directions(20, rng), rng, hold_s=3)
     hold = np.flatnonzero(s.pose == 7)
     s.samples.gyro[hold[len(hold) // 2:]] += [np.radians(5.0), 0, 0]
     s.samples.accel[np.flatnonzero(s.pose == 11)[100:250]] += [0.2, -0.2, 0.2]
     f['slow_turn'] = os.path.join(folder, 'slow_turn.csv')
     peer_data.to_spec_csv(s.samples, f['slow_turn'])
-    s = sim_session.simulate_session(sensor, sim_session.random_directions(20, rng), rng, hold_s=2)
+    s = sim_motion.simulate_session(sensor, sim_motion.random_directions(20, rng), rng, hold_s=2)
     s.samples.accel = np.round(s.samples.accel * 16384 / G)
     f['raw_counts'] = os.path.join(folder, 'raw_counts.csv')
     peer_data.to_spec_csv(s.samples, f['raw_counts'])

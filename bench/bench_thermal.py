@@ -14,8 +14,8 @@ import argparse
 
 from accel_calib_ros.core.accelerometer.fit import calibrate
 from accel_calib_ros.core.windows import detect_static_windows
+from accel_calib_ros.sim.motion import random_directions, simulate_session
 from accel_calib_ros.sim.sensor import mpu9250_like
-from accel_calib_ros.sim.session import random_directions, simulate_session
 import numpy as np
 
 G = 9.80665

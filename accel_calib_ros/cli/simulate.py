@@ -106,8 +106,8 @@ def run(args, out):
     """Run ``accel-calib simulate``; return the exit status."""
     from .progress import Progress
     from ..dataio.recording import write_bag, write_samples_csv
+    from ..sim import motion as sim_motion
     from ..sim import sensor as sim
-    from ..sim import session as sim_session
     if args.output == STDOUT and args.json:
         raise UsageError('accel-calib: simulate -o - writes the CSV to standard output: '
                          'leave out --json')
@@ -136,7 +136,7 @@ def run(args, out):
         if gyro_noise is not None:
             sensor.gyro_noise_std = gyro_noise
     if args.poses == 'faces':
-        directions = sim_session.face_directions()
+        directions = sim_motion.face_directions()
     else:
         sunxu = args.poses.startswith('sunxu:')
         text = args.poses[6:] if sunxu else args.poses
@@ -147,9 +147,9 @@ def run(args, out):
                              f'not {args.poses[:40]!r}') from None
         if not 1 <= count <= MAX_POSES:
             raise UsageError(f'accel-calib: --poses must lie in [1, {MAX_POSES}], got {count}')
-        directions = (sim_session.sun_xu_directions(count, rng) if sunxu
-                      else sim_session.random_poses(count, rng) if imu      # headings fixed too
-                      else sim_session.random_directions(count, rng))
+        directions = (sim_motion.sun_xu_directions(count, rng) if sunxu
+                      else sim_motion.random_poses(count, rng) if imu      # headings fixed too
+                      else sim_motion.random_directions(count, rng))
     if len(args.temp) not in (1, 2):
         raise UsageError('accel-calib: --temp takes one value or START END')
     total = len(directions) * (args.hold + args.move) * args.rate + args.hold * args.rate
@@ -160,13 +160,13 @@ def run(args, out):
     temperature = args.temp[0] if len(args.temp) == 1 else tuple(args.temp)
     earth_field = sim.EarthField(args.field, args.dip)
     kwargs = {'hold_s': args.hold, 'move_s': args.move, 'rate_hz': args.rate}
-    total = sim_session.session_length(directions, **kwargs)
+    total = sim_motion.session_length(directions, **kwargs)
     last_t = []
 
     def pieces(bar):        # streamed: one piece of the session in memory at a time
-        for piece in sim_session.iter_session(sensor, directions, rng, gravity=args.gravity,
-                                              temperature=temperature, earth_field=earth_field,
-                                              tremor_deg=args.tremor, **kwargs):
+        for piece in sim_motion.iter_session(sensor, directions, rng, gravity=args.gravity,
+                                             temperature=temperature, earth_field=earth_field,
+                                             tremor_deg=args.tremor, **kwargs):
             bar.update(len(piece.samples))
             last_t[:] = [float(piece.samples.t[-1])]
             yield piece.samples

@@ -24,6 +24,7 @@ writer puts the same vector in ``gyro_bias_rad_s`` and ``gyro.bias``; the loader
 
 import math
 import os
+import re
 
 import numpy as np
 import yaml
@@ -37,8 +38,13 @@ from ..core.finite import finite_or_none
 
 FORMAT = 'accel_calib_ros/calibration'
 VERSION = 1
-MAX_FILE_BYTES = 1 << 20
-"""Largest calibration file read, bytes (a real one is a few kB)."""
+MAX_FILE_BYTES = 1 << 18
+"""Largest calibration file read, bytes (a real one is a few kB; 200 thermal bands with
+gyro biases, the most the loader takes, under 100 kB)."""
+MAX_NESTING = 32
+"""Deepest nesting of a calibration file's YAML, as :func:`nesting_depth` bounds it (the
+writer's files reach 5): checked before parsing, so a file of nested brackets is
+refused at once instead of after a long parse."""
 MAX_BANDS = 200
 MAX_CONDITION = 10.0
 """Largest condition number of T accepted (a real sensor is within a few per cent of 1)."""
@@ -184,8 +190,8 @@ def save_calibration(cal, path):
 
 # -- reading ---------------------------------------------------------------------------
 
-class UniqueKeyLoader(yaml.SafeLoader):
-    """A YAML SafeLoader that refuses a mapping with the same key twice (no silent last-win)."""
+class _UniqueKeys:
+    """Mixin of a YAML loader: a mapping with the same key twice is refused (no last-win)."""
 
     def construct_mapping(self, node, deep=False):
         """Build a mapping; a repeated key is a ConstructorError naming it and its line."""
@@ -207,9 +213,38 @@ class UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep)
 
 
+class UniqueKeyLoader(_UniqueKeys, yaml.SafeLoader):
+    """A YAML SafeLoader that refuses a mapping with the same key twice."""
+
+
+# libyaml's parser (PyYAML's C extension, in the PyPI wheels and Debian's python3-yaml)
+# reads a file 10-20 times faster: a reload never stalls a node for long.
+_Loader = type('_FastUniqueKeyLoader', (_UniqueKeys, yaml.CSafeLoader), {}) \
+    if getattr(yaml, '__with_libyaml__', False) else UniqueKeyLoader
+
+_QUOTED_OR_COMMENT = re.compile(r"'(?:[^']|'')*'|\"(?:[^\"\\]|\\.)*\"|(?:(?<=\s)|^)#[^\n]*",
+                                re.M)
+
+
+def nesting_depth(text):
+    """
+    Return an upper bound of how deep the collections of YAML ``text`` nest, unparsed.
+
+    Flow brackets (``[``, ``{``) outside quotes and comments, plus a line's indentation
+    (one level per column at most) and its leading ``- `` items; linear in the text.
+    """
+    plain = _QUOTED_OR_COMMENT.sub('', text)
+    steps = np.frombuffer(re.sub(r'[^\[\]{}]', '', plain).encode('ascii'), np.uint8)
+    flow = int(np.cumsum(np.where((steps == 91) | (steps == 123), 1, -1)).max()) \
+        if len(steps) else 0
+    block = max((len(m.group(1)) + m.group(2).count('-')
+                 for m in re.finditer(r'^( *)((?:- +)*)', plain, re.M)), default=0)
+    return flow + block
+
+
 def load_yaml(text):
     """Parse YAML text safely, refusing duplicate keys (yaml.YAMLError on any problem)."""
-    return yaml.load(text, Loader=UniqueKeyLoader)     # noqa: S506 - a SafeLoader subclass
+    return yaml.load(text, Loader=_Loader)     # noqa: S506 - a SafeLoader subclass
 
 
 class _Bad(Exception):
@@ -492,6 +527,9 @@ def _load(path):
     except UnicodeDecodeError as err:
         raise InputError(f'calibration file {path} is not UTF-8 text (byte {err.start})') \
             from None
+    if nesting_depth(text) > MAX_NESTING:
+        raise InputError(f'calibration file {path} is nested too deeply (more than '
+                         f'{MAX_NESTING} levels): not a calibration file')
     try:
         parsed = load_yaml(text)
     except yaml.YAMLError as err:

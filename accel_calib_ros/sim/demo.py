@@ -361,8 +361,8 @@ def _report_field(client, truth):
 
 def run_offline_demo(args):
     """Without ROS: simulate a session, fit all three sensors, show the correction."""
+    from .motion import random_directions, random_poses, simulate_session
     from .sensor import ak8963_like, EarthField, mpu9250_like, with_gyro_errors
-    from .session import random_directions, random_poses, simulate_session
     from ..core.accelerometer.fit import calibrate
     from ..core.outcomes import solve_gyro, solve_magnetometer
     from ..core.windows import detect_static_windows

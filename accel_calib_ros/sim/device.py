@@ -132,7 +132,7 @@ def add_arguments(parser):
 
 
 def _directions(args, rng):
-    from .session import face_directions, random_directions
+    from .motion import face_directions, random_directions
     if args.poses == 'faces':
         faces = face_directions()
         count = args.count or 6
@@ -252,7 +252,7 @@ class VirtualSensor:
 
     def _script(self):
         """Return the scripted session as a generator of (n, 7) count blocks."""
-        from .session import iter_session
+        from .motion import iter_session
         a = self.args
         temperature = tuple(a.temp_ramp) if a.temp_ramp else a.temp
         # In pieces of CHUNK_S: a long --hold never builds the whole session in memory

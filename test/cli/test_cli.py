@@ -9,8 +9,8 @@ import sys
 
 from accel_calib_ros.cli import main
 from accel_calib_ros.dataio.calibration_file import load_calibration
+from accel_calib_ros.sim.motion import random_directions, simulate_session
 from accel_calib_ros.sim.sensor import mpu9250_like
-from accel_calib_ros.sim.session import random_directions, simulate_session
 import numpy as np
 import peer_data
 import pytest

@@ -9,8 +9,8 @@ from accel_calib_ros.cli.guide_session import GuideSession
 from accel_calib_ros.cli.guide_sources import SerialSource
 from accel_calib_ros.core.advice import CANDIDATE_POSES
 from accel_calib_ros.dataio.wire import encode_frame
+from accel_calib_ros.sim.motion import simulate_session
 from accel_calib_ros.sim.sensor import mpu9250_like
-from accel_calib_ros.sim.session import simulate_session
 import numpy as np
 import pytest
 

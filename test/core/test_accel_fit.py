@@ -5,7 +5,7 @@ from accel_calib_ros.core.accelerometer.gn import fit_gn
 from accel_calib_ros.core.accelerometer.ml import (_Problem, cramer_rao_bound, fit_ml,
                                                    fit_ml_bias_corrected, pack, unpack)
 from accel_calib_ros.core.errors import CalibrationError
-from accel_calib_ros.sim.session import face_directions, random_directions, sun_xu_directions
+from accel_calib_ros.sim.motion import face_directions, random_directions, sun_xu_directions
 import numpy as np
 import pytest
 

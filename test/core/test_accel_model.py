@@ -5,8 +5,8 @@ from accel_calib_ros.core.accelerometer.thermal import fit_thermal_table
 from accel_calib_ros.core.errors import CalibrationError, InputError
 from accel_calib_ros.core.windows import detect_static_windows, OnlineStaticDetector
 from accel_calib_ros.dataio.calibration_file import load_calibration, save_calibration
+from accel_calib_ros.sim.motion import random_directions, simulate_session
 from accel_calib_ros.sim.sensor import mpu9250_like
-from accel_calib_ros.sim.session import random_directions, simulate_session
 import numpy as np
 import peer_data
 import pytest

@@ -7,8 +7,8 @@ from accel_calib_ros.core.accuracy import predicted_accuracy
 from accel_calib_ros.core.errors import CalibrationError
 from accel_calib_ros.core.samples import Samples
 from accel_calib_ros.core.windows import detect_static_windows
+from accel_calib_ros.sim.motion import random_directions, simulate_session, simulate_window_means
 from accel_calib_ros.sim.sensor import mpu9250_like
-from accel_calib_ros.sim.session import random_directions, simulate_session, simulate_window_means
 import numpy as np
 import pytest
 

@@ -3,8 +3,8 @@
 from accel_calib_ros.core.accelerometer.fit import calibrate
 from accel_calib_ros.core.acceptance import review
 from accel_calib_ros.core.poses import CANDIDATE_POSES
+from accel_calib_ros.sim.motion import random_directions, simulate_window_means
 from accel_calib_ros.sim.sensor import mpu9250_like
-from accel_calib_ros.sim.session import random_directions, simulate_window_means
 import numpy as np
 
 

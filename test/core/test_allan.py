@@ -91,8 +91,8 @@ def test_one_noise_density_convention_across_allan_diagnose_and_simulate(tmp_pat
     """
     from scipy import signal
     from accel_calib_ros.modelgap import diagnose
+    from accel_calib_ros.sim.motion import random_directions, simulate_session
     from accel_calib_ros.sim.sensor import mpu9250_like
-    from accel_calib_ros.sim.session import random_directions, simulate_session
     density = 0.003                                     # N, m/s²/√Hz
     samples = still(300, density, seed=3)
     result = allan(samples)

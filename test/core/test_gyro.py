@@ -6,8 +6,8 @@ from accel_calib_ros.core.gyroscope.fit import fit_gyro, predicted_accuracy
 from accel_calib_ros.core.gyroscope.moves import clipped, integrate, Moves
 from accel_calib_ros.core.samples import Samples
 from accel_calib_ros.core.windows import detect_static_windows
+from accel_calib_ros.sim import motion as sim_motion
 from accel_calib_ros.sim import sensor as simulate
-from accel_calib_ros.sim import session as sim_session
 import numpy as np
 import peer_data
 import pytest
@@ -20,9 +20,9 @@ def hand_held(seed, poses=24, tremor_deg=0.3, full_scale=None, move_s=1.5, direc
     sensor = simulate.with_gyro_errors(simulate.mpu9250_like(rng),
                                        np.random.default_rng(seed + 1000), full_scale)
     if directions is None:
-        directions = sim_session.random_poses(poses, rng)
-    return sim_session.simulate_session(sensor, directions, rng, move_s=move_s,
-                                        tremor_deg=tremor_deg)
+        directions = sim_motion.random_poses(poses, rng)
+    return sim_motion.simulate_session(sensor, directions, rng, move_s=move_s,
+                                       tremor_deg=tremor_deg)
 
 
 def relative_error(T_fit, T_true):
@@ -107,7 +107,7 @@ def test_predicted_accuracy_is_the_sphere_average():
     L = 1e-3 * rng.standard_normal((9, 9))
     C = L @ L.T
     dT = rng.multivariate_normal(np.zeros(9), C, 100000).reshape(-1, 3, 3)
-    u = sim_session.random_directions(100000, rng)
+    u = sim_motion.random_directions(100000, rng)
     err = np.einsum('ij,njk,nk->ni', np.linalg.inv(T), dT, u)
     monte_carlo = np.sqrt(np.mean(np.sum(err ** 2, axis=1)))
     assert predicted_accuracy(T, C) == pytest.approx(monte_carlo, rel=0.02)

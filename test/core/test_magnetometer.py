@@ -7,8 +7,8 @@ from accel_calib_ros.core.magnetometer.fit import (_linear_start, canonical, cor
                                                    sphere_coverage)
 from accel_calib_ros.core.samples import Samples
 from accel_calib_ros.core.windows import detect_static_windows
+from accel_calib_ros.sim import motion as sim_motion
 from accel_calib_ros.sim import sensor as simulate
-from accel_calib_ros.sim import session as sim_session
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -22,10 +22,10 @@ def session_with_mag(seed, poses=24, directions=None, rate_hz=100.0, misalignmen
     sensor.magnetometer = simulate.ak8963_like(np.random.default_rng(seed + 500),
                                                misalignment_deg=misalignment_deg)
     if directions is None:
-        directions = sim_session.random_poses(poses, rng)
-    return sim_session.simulate_session(sensor, directions, rng, rate_hz=rate_hz,
-                                        earth_field=earth or simulate.EarthField(48.0, 60.0),
-                                        tremor_deg=tremor_deg)
+        directions = sim_motion.random_poses(poses, rng)
+    return sim_motion.simulate_session(sensor, directions, rng, rate_hz=rate_hz,
+                                       earth_field=earth or simulate.EarthField(48.0, 60.0),
+                                       tremor_deg=tremor_deg)
 
 
 def truth_of(session, field_known=False):
@@ -37,7 +37,7 @@ def truth_of(session, field_known=False):
 def sphere_error(fit, session, n=20000):
     """RMS error (µT) of the fit's corrected field over field directions on the sphere."""
     T, R, field_uT = truth_of(session)
-    u = sim_session.random_directions(n, np.random.default_rng(1))
+    u = sim_motion.random_directions(n, np.random.default_rng(1))
     raw = (field_uT * u) @ (T @ R).T + session.sensor.magnetometer.hard_iron
     err = fit.correct(raw) - field_uT * u
     return float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))
@@ -45,7 +45,7 @@ def sphere_error(fit, session, n=20000):
 
 def test_sphere_coverage_measures_the_fraction_visited():
     rng = np.random.default_rng(0)
-    u = sim_session.random_directions(100000, rng)
+    u = sim_motion.random_directions(100000, rng)
     assert sphere_coverage(u) == 1.0
     assert 0.5 <= sphere_coverage(u[u[:, 2] > 0]) < 0.7   # cells touched at its edge count
     angle = np.linspace(0, 2 * np.pi, 1000)
@@ -65,7 +65,7 @@ def test_canonical_form_is_upper_triangular_and_equivalent():
     assert np.allclose(np.tril(T, -1), 0) and np.all(np.diag(T) > 0)
     assert np.linalg.det(T) == pytest.approx(1.0)
     assert np.allclose(R @ R.T, np.eye(3)) and np.linalg.det(R) == pytest.approx(1.0)
-    f = sim_session.random_directions(5, rng)
+    f = sim_motion.random_directions(5, rng)
     assert np.allclose((T @ R @ (field_uT * f).T), mag.T @ mag.R @ (48.0 * f).T)
     T_known, _, same = canonical(mag.T, mag.R, 48.0, field_known=True)
     assert same == 48.0 and np.allclose(T_known @ R, mag.T @ mag.R)
@@ -144,7 +144,7 @@ def test_predicted_accuracy_matches_a_monte_carlo_of_the_covariance():
     rng = np.random.default_rng(2)
     n = 20000
     dp = rng.multivariate_normal(np.zeros(12), fit.covariance, n)
-    u = sim_session.random_directions(n, rng)
+    u = sim_motion.random_directions(n, rng)
     T1 = fit.T * fit.field_uT
     raw = u @ (T1 @ fit.R).T + fit.hard_iron_uT
     err = np.empty((n, 3))

@@ -6,7 +6,7 @@ import sys
 from accel_calib_ros.core.accelerometer.gn import fit_gn
 from accel_calib_ros.core.accelerometer.ml import _Problem, cramer_rao_bound, fit_ml, pack
 from accel_calib_ros.core.errors import CalibrationError
-from accel_calib_ros.sim.session import face_directions, random_directions
+from accel_calib_ros.sim.motion import face_directions, random_directions
 import numpy as np
 import pytest
 

@@ -1,8 +1,8 @@
 """The streaming static-window detector against the offline one (core/windows/)."""
 
 from accel_calib_ros.core.windows import (DEFAULTS, detect_static_windows, OnlineStaticDetector)
+from accel_calib_ros.sim.motion import random_directions, simulate_session
 from accel_calib_ros.sim.sensor import mpu9250_like
-from accel_calib_ros.sim.session import random_directions, simulate_session
 import numpy as np
 import pytest
 

@@ -18,8 +18,8 @@ from accel_calib_ros.core.samples import Samples
 from accel_calib_ros.dataio.calibration_file import (calibration_from_dict, calibration_to_dict,
                                                      load_calibration, save_calibration)
 from accel_calib_ros.dataio.recording import load_samples, write_bag, write_samples_csv
+from accel_calib_ros.sim import motion as sim_motion
 from accel_calib_ros.sim import sensor as sim
-from accel_calib_ros.sim import session as sim_session
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -214,8 +214,8 @@ def test_fit_calibrates_all_three_sensors_within_their_predicted_accuracy(
 def test_absent_sensors_are_null_and_the_accelerometer_is_written(capsys, tmp_path):
     data, calib = tmp_path / 's.csv', tmp_path / 'c.yaml'
     rng = np.random.default_rng(3)
-    session = sim_session.simulate_session(sim.mpu9250_like(rng),
-                                           sim_session.random_directions(14, rng), rng)
+    session = sim_motion.simulate_session(sim.mpu9250_like(rng),
+                                          sim_motion.random_directions(14, rng), rng)
     s = session.samples
     write_samples_csv(data, Samples(s.t, s.accel, s.temp))            # no gyro, no mag
     code, out, err = run(capsys, 'fit', data, '-o', calib, '--json')
@@ -240,7 +240,7 @@ def _one_axis_session(seed):
         poses.append(poses[-1] * Rotation.from_rotvec(np.radians(axis)))
     sensor = sim.with_gyro_errors(sim.mpu9250_like(rng), rng)
     sensor.magnetometer = sim.ak8963_like(rng)
-    return sim_session.simulate_session(sensor, Rotation.concatenate(poses), rng).samples
+    return sim_motion.simulate_session(sensor, Rotation.concatenate(poses), rng).samples
 
 
 def test_missing_rotation_axis_and_coverage_are_warnings_not_failures(capsys, tmp_path):

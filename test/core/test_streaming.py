@@ -13,8 +13,8 @@ from accel_calib_ros.core.errors import InputError
 from accel_calib_ros.core.samples import Samples
 from accel_calib_ros.dataio.recording import (csv_writer, iter_samples, load_samples, write_bag,
                                               write_samples_csv)
+from accel_calib_ros.sim import motion as sim_motion
 from accel_calib_ros.sim import sensor as sim
-from accel_calib_ros.sim import session as sim_session
 import numpy as np
 import pytest
 
@@ -24,20 +24,20 @@ CLI = [sys.executable, '-m', 'accel_calib_ros.cli']
 def session(seed=0, poses=5, **kwargs):
     """Return (sensor, directions, fresh generator) of a small simulated session."""
     rng = np.random.default_rng(seed)
-    return sim.mpu9250_like(rng), sim_session.random_directions(poses, rng), \
+    return sim.mpu9250_like(rng), sim_motion.random_directions(poses, rng), \
         np.random.default_rng(seed + 100)
 
 
 def test_iter_session_pieces_join_to_the_whole_session():
     sensor, directions, _ = session()
-    whole = sim_session.simulate_session(sensor, directions, np.random.default_rng(7),
-                                         hold_s=np.array([2.0, 0.01, 3.0, 1.0, 2.0]),
-                                         temperature=(15.0, 30.0))
-    pieces = list(sim_session.iter_session(sensor, directions, np.random.default_rng(7),
-                                           hold_s=np.array([2.0, 0.01, 3.0, 1.0, 2.0]),
-                                           temperature=(15.0, 30.0), chunk_rows=120))
+    whole = sim_motion.simulate_session(sensor, directions, np.random.default_rng(7),
+                                        hold_s=np.array([2.0, 0.01, 3.0, 1.0, 2.0]),
+                                        temperature=(15.0, 30.0))
+    pieces = list(sim_motion.iter_session(sensor, directions, np.random.default_rng(7),
+                                          hold_s=np.array([2.0, 0.01, 3.0, 1.0, 2.0]),
+                                          temperature=(15.0, 30.0), chunk_rows=120))
     assert len(pieces) > 5
-    assert len(whole.samples) == sim_session.session_length(
+    assert len(whole.samples) == sim_motion.session_length(
         directions, hold_s=np.array([2.0, 0.01, 3.0, 1.0, 2.0]))
     for name in ('t', 'accel', 'temp', 'gyro'):
         joined = np.concatenate([getattr(p.samples, name) for p in pieces])
@@ -54,7 +54,7 @@ def test_iter_session_pieces_join_to_the_whole_session():
 
 def test_iter_samples_pieces_equal_load_samples(tmp_path):
     sensor, directions, rng = session()
-    s = sim_session.simulate_session(sensor, directions, rng).samples
+    s = sim_motion.simulate_session(sensor, directions, rng).samples
     path = tmp_path / 'a.csv'
     write_samples_csv(path, s)
     whole = load_samples(path)
@@ -86,7 +86,7 @@ def test_streamed_reader_reports_problems_in_later_pieces(tmp_path):
 
 def test_csv_writer_in_pieces_and_bag_from_pieces(tmp_path):
     sensor, directions, rng = session()
-    pieces = [p.samples for p in sim_session.iter_session(sensor, directions, rng, chunk_rows=200)]
+    pieces = [p.samples for p in sim_motion.iter_session(sensor, directions, rng, chunk_rows=200)]
     whole = Samples(*(np.concatenate([getattr(p, n) for p in pieces])
                       for n in ('t', 'accel', 'temp', 'gyro')))
     path = tmp_path / 'w.csv'
@@ -202,7 +202,7 @@ def test_progress_bar_only_on_a_terminal_after_the_delay(monkeypatch):
 @pytest.mark.parametrize('argv', [['--help'], ['fit', 'DATA'], ['apply', '--help']])
 def test_light_commands_import_no_heavy_module(tmp_path, argv):
     data = tmp_path / 's.csv'
-    write_samples_csv(data, sim_session.simulate_session(*session(poses=8)).samples)
+    write_samples_csv(data, sim_motion.simulate_session(*session(poses=8)).samples)
     argv = [str(data) if a == 'DATA' else a for a in argv]
     code = ('import sys\nfrom accel_calib_ros.cli import main\n'
             f'try:\n    main({argv!r})\nexcept SystemExit:\n    pass\n'

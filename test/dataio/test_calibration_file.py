@@ -11,6 +11,7 @@ from accel_calib_ros.core.calibration import Calibration
 from accel_calib_ros.core.errors import CalibrationError, InputError
 from accel_calib_ros.dataio.calibration_file import (calibration_from_dict, calibration_to_dict,
                                                      calibration_to_yaml, load_calibration,
+                                                     MAX_BANDS, MAX_NESTING, nesting_depth,
                                                      save_calibration)
 from hypothesis import given, HealthCheck, settings, strategies as st
 import numpy as np
@@ -150,6 +151,34 @@ def test_truncated_files_directories_and_missing_files(tmp_path):
         load_calibration(tmp_path)
     with pytest.raises(InputError, match='not found'):
         load_calibration(tmp_path / 'nope.yaml')
+
+
+@pytest.mark.parametrize('text', [
+    'a: ' + '[' * 20000 + ']' * 20000 + '\n',                       # 40 kB of brackets
+    'a: ' + '{b: ' * 40 + '1' + '}' * 40 + '\n',
+    'a:\n' + ''.join(' ' * k + '- \n' for k in range(1, 60)),      # block nesting
+    '- ' * 60 + 'x\n',                                            # compact sequences
+])
+def test_deeply_nested_files_are_refused_before_parsing(tmp_path, text):
+    """A file of nested brackets is refused by its shape (it stalled a reload 1.7 s)."""
+    assert nesting_depth(text) > MAX_NESTING
+    with pytest.raises(InputError, match='nested too deeply'):
+        load_calibration(_write(tmp_path, text))
+
+
+def test_the_largest_real_file_loads_and_is_shallow(tmp_path):
+    """MAX_BANDS thermal bands with gyro biases: under the size cap, 5 levels deep."""
+    cal = full_calibration()
+    bands = [ThermalBand(-40 + 0.5 * k, -39.5 + 0.5 * k, -39.75 + 0.5 * k, np.full(3, 1e-5),
+                         np.full(3, -1e-3), np.full(3, 0.01), 20, gyro_bias=np.full(3, 1e-3))
+             for k in range(MAX_BANDS)]
+    cal.thermal = ThermalTable(0.5, bands)
+    cal.temperature_range_c = (-40.0, 60.0)
+    text = calibration_to_yaml(cal)
+    assert nesting_depth(text) <= 6 and '[[[' not in text
+    assert nesting_depth('a: "[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[" # [[[[[[[[[[[[\n') == 0
+    back = load_calibration(_write(tmp_path, text))
+    assert len(back.thermal.bands) == MAX_BANDS
 
 
 def test_loader_imports_no_scipy():

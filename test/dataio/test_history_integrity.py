@@ -13,8 +13,8 @@ from accel_calib_ros.core.calibration import Calibration
 from accel_calib_ros.core.errors import InputError
 from accel_calib_ros.dataio.history import History, HistoryDamaged
 from accel_calib_ros.dataio.sensor_id import normalise_sensor_id
+from accel_calib_ros.sim.motion import simulate_session
 from accel_calib_ros.sim.sensor import mpu9250_like
-from accel_calib_ros.sim.session import simulate_session
 from damage_cases import DAMAGE, damage as _damage, EMPTY_IS_NEW
 from hypothesis import given, HealthCheck, settings, strategies as st
 import numpy as np

@@ -6,8 +6,8 @@ import json
 from accel_calib_ros.cli import main
 from accel_calib_ros.dataio.recording import write_samples_csv
 from accel_calib_ros.sim import device
+from accel_calib_ros.sim.motion import iter_session
 from accel_calib_ros.sim.sensor import SensorModel
-from accel_calib_ros.sim.session import iter_session
 import numpy as np
 import pytest
 

@@ -11,9 +11,9 @@ from accel_calib_ros.cli import main
 from accel_calib_ros.modelgap import diagnose, diagnose_windows, held_out_check
 from accel_calib_ros.modelgap.noise import min_detectable_mg, WindowNoise
 from accel_calib_ros.modelgap.workflow import still_drift
+from accel_calib_ros.sim.motion import (random_directions, simulate_session,
+                                        simulate_static_windows)
 from accel_calib_ros.sim.sensor import G0, mpu9250_like, with_datasheet_effect
-from accel_calib_ros.sim.session import (random_directions, simulate_session,
-                                         simulate_static_windows)
 import numpy as np
 import pytest
 from scipy import signal

@@ -22,8 +22,8 @@ import time
 from accel_calib_ros.core.accelerometer.fit import Calibration
 from accel_calib_ros.dataio.calibration_file import load_calibration, save_calibration
 from accel_calib_ros.nodes.calibration import CalibrationNode
+from accel_calib_ros.sim.motion import simulate_session, simulate_window_means
 from accel_calib_ros.sim.sensor import mpu9250_like
-from accel_calib_ros.sim.session import simulate_session, simulate_window_means
 import numpy as np
 import pytest
 import rclpy

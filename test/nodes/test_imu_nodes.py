@@ -16,8 +16,8 @@ from accel_calib_ros.core.calibration import Calibration, MagnetometerPart
 from accel_calib_ros.dataio.calibration_file import load_calibration, save_calibration
 from accel_calib_ros.nodes.calibration import CalibrationNode
 from accel_calib_ros.nodes.correction import CorrectionNode
+from accel_calib_ros.sim import motion as sim_motion
 from accel_calib_ros.sim import sensor as sim
-from accel_calib_ros.sim import session as sim_session
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 import pytest
@@ -233,8 +233,8 @@ def imu_session():
     rng = np.random.default_rng(21)
     sensor = sim.with_gyro_errors(sim.mpu9250_like(rng, 200.0), np.random.default_rng(22))
     sensor.magnetometer = sim.ak8963_like(np.random.default_rng(23))
-    return sim_session.simulate_session(sensor, sim_session.random_poses(16, rng), rng, hold_s=2.5,
-                                        rate_hz=200.0, tremor_deg=0.2)
+    return sim_motion.simulate_session(sensor, sim_motion.random_poses(16, rng), rng, hold_s=2.5,
+                                       rate_hz=200.0, tremor_deg=0.2)
 
 
 def test_calibration_node_solves_and_reports_all_three_sensors(calibration_node, tmp_path,

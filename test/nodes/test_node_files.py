@@ -6,8 +6,8 @@ import stat
 from accel_calib_ros.dataio.history import History
 from accel_calib_ros.nodes.calibration import CalibrationNode
 from accel_calib_ros.nodes.common import ParameterProblem
+from accel_calib_ros.sim.motion import random_directions, simulate_session
 from accel_calib_ros.sim.sensor import mpu9250_like
-from accel_calib_ros.sim.session import random_directions, simulate_session
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
