@@ -31,8 +31,8 @@ import math
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from .motion import random_directions, simulate_static_windows
 from .sensor import ak8963_like, EarthField, mpu9250_like, with_gyro_errors
-from .session import random_directions, simulate_static_windows
 from ..core.accelerometer.fit import calibrate
 from ..core.calibration import MagnetometerPart
 from ..core.constants import G0
