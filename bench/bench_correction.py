@@ -7,7 +7,8 @@ input: the correction node (``imu/corrected``) and a bare relay that only subscr
 and republishes (``bench/relay``), both with the same QoS (best-effort input, reliable
 output, depth 100). This process subscribes to both outputs and measures delivery
 (received / published), latency (receive time - stamp) percentiles and the resident
-memory of both consumers (VmRSS at the end of the input), and prints the ratios
+memory of both consumers (VmRSS at the end of the input), their CPU time while the
+input streams (user + system, /proc), and prints the ratios
 issue 11 asks for (RSS <= 1.2x the relay, p50 latency <= the relay's, 100 % delivered)::
 
     python bench/bench_correction.py [--rate 1000] [--duration 10]
@@ -111,6 +112,16 @@ def rss_mib(pid):
     return None
 
 
+def cpu_seconds(pid):
+    """User + system CPU time of a process so far, s (None when it is gone)."""
+    try:
+        with open(f'/proc/{pid}/stat', encoding='ascii') as f:
+            fields = f.read().rsplit(')', 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+    except (OSError, IndexError, ValueError):
+        return None
+
+
 def percentile_row(name, published, stamps_ns):
     """One table row: delivery and latency percentiles in ms."""
     lat = np.asarray(stamps_ns, float) * 1e-6
@@ -185,6 +196,7 @@ def main():
         publisher = subprocess.Popen([py, HERE, '--role', 'publisher', '--rate', str(args.rate),
                                       '--duration', str(args.duration)],
                                      env=env, stdout=subprocess.PIPE, text=True)
+        cpu_start = [cpu_seconds(p.pid) for p in procs]
         while publisher.poll() is None:
             executor.spin_once(timeout_sec=0.01)
             rss = [rss_mib(p.pid) for p in procs]
@@ -193,6 +205,7 @@ def main():
         grace = time.monotonic() + 1.0
         while time.monotonic() < grace:
             executor.spin_once(timeout_sec=0.01)
+        cpu_end = [cpu_seconds(p.pid) for p in procs]
         sent, achieved = publisher.stdout.read().split()
         sent = int(sent)
     finally:
@@ -219,6 +232,10 @@ def main():
           f'relay {peak[1]:.1f} MiB')
     if peak[1]:
         print(f'RSS ratio correction / relay: {peak[0] / peak[1]:.2f} (target <= 1.2)')
+    if None not in cpu_start + cpu_end:
+        cpu = [b - a for a, b in zip(cpu_start, cpu_end)]
+        print(f'CPU while streaming: correction {cpu[0]:.2f} s, relay {cpu[1]:.2f} s '
+              f'(ratio {cpu[0] / max(cpu[1], 1e-9):.2f})')
     if p50_c and p50_r:
         print(f'p50 ratio correction / relay: {p50_c / p50_r:.2f} (target <= 1.0)')
     print(f'delivered: correction {100.0 * len(lat["imu/corrected"]) / sent:.2f} %, relay '

@@ -2,9 +2,9 @@
 ``accel-calib``: the calibration science offline, on CSV or rosbag2 recordings.
 
 One module per command (``fit``, ``apply``, ``simulate``, ``diagnose``, ``allan``,
-``advise``, ``guide``, ``history``, ``simulate_device``), each with ``add_arguments(p)``
-and ``run(args, out)``; ``common`` holds what they share. Only the module of the
-command that runs is imported, so a command pays only for its own imports.
+``advise``, ``guide``, ``history``, ``health``, ``simulate_device``), each with
+``add_arguments(p)`` and ``run(args, out)``; ``common`` holds what they share. Only the
+module of the command that runs is imported, so a command pays only for its own imports.
 
 Exit status: 0 success, 2 bad usage or bad input, 1 a calibration that cannot be
 solved, 128 + N when stopped by signal N (130 SIGINT, 143 SIGTERM, 129 SIGHUP: every
@@ -35,6 +35,8 @@ COMMANDS = {
     'advise': ('advise', 'which pose to hold next, and when it is enough'),
     'guide': ('guide', 'live guided calibration in the terminal'),
     'history': ('history', 'list calibrations per sensor and plot their drift'),
+    'health': ('health', 'check a calibration against a recording at rest: still good, or '
+                         'recalibrate?'),
 }
 """Command name: (module in this package, one-line help)."""
 

@@ -379,6 +379,37 @@ def _spin_quietly(executor):
         pass
 
 
+class GroupExecutor(rclpy.executors.SingleThreadedExecutor):
+    """
+    A single-threaded executor that runs only one callback group of a node, or all but it.
+
+    Two of them share one node (one node per process, so a ``__node:=`` remap names
+    exactly one node): the hot path's group on one thread, with nothing else in its
+    wait set (no parameter services, timers or other subscriptions: the per-message
+    executor work of a bare relay), everything else on another. rclpy's executors pick
+    entities through :meth:`can_execute`; a node belongs (``node.executor``) to the one
+    added with :meth:`add_node`, the other shares it through :meth:`share_node`.
+
+    :param group: the callback group.
+    :param inside: True: run the group's callbacks only; False: everything but them.
+    """
+
+    def __init__(self, group, inside, context=None):
+        super().__init__(context=context)
+        self.group, self.inside = group, inside
+
+    def can_execute(self, entity):
+        """Return True for entities of this executor's side of the group, when ready."""
+        return (entity.callback_group is self.group) == self.inside \
+            and super().can_execute(entity)
+
+    def share_node(self, node):
+        """Spin ``node`` too without taking it from the executor it belongs to."""
+        with self._nodes_lock:
+            self._nodes.add(node)
+        self._guard.trigger()
+
+
 def run(node_class, logger_name, args=None):
     """
     Run a node until Ctrl-C; exit status 2 on a bad parameter.
@@ -393,19 +424,18 @@ def run(node_class, logger_name, args=None):
     control = thread = None
     try:
         node = node_class()
-        side = list(getattr(node, 'side_nodes', ()))
-        if side:
-            # The node's hot path lives on side nodes: they get the main thread and an
-            # executor of their own; the node itself (parameters, services, timers) is
-            # spun in a background thread.
+        group = getattr(node, 'stream_group', None)
+        if group is not None:
+            # The node's hot path is one callback group: it gets the main thread and an
+            # executor of its own; the rest (parameters, services, timers) is spun in a
+            # background thread.
             import threading
-            control = rclpy.executors.SingleThreadedExecutor()
+            control = GroupExecutor(group, inside=False)
             control.add_node(node)
             thread = threading.Thread(target=_spin_quietly, args=(control,), daemon=True)
             thread.start()
-            main = rclpy.executors.SingleThreadedExecutor()
-            for extra in side:
-                main.add_node(extra)
+            main = GroupExecutor(group, inside=True)
+            main.share_node(node)
             main.spin()
         else:
             rclpy.spin(node)

@@ -25,7 +25,19 @@ message with
   published there, and ``/diagnostics`` says whether ``imu/mag`` arrives;
 - ``L`` the level trim (``level_roll_pitch_rad`` in the file, measured by ``~/level``),
   identity without one. The orientation and its covariance pass through untouched (the
-  driver sends identity with ``orientation_covariance[0] = -1``), as does the header.
+  driver sends identity with ``orientation_covariance[0] = -1``), as does the header,
+  except the frame_id while a trim is applied: the axes are the levelled ones, so
+  ``imu/corrected`` and ``imu/mag_corrected`` carry ``level_frame_id`` (default: the
+  raw frame_id + ``_level``);
+- the field monitor (issue 24, :mod:`.correction_monitor`, ``core.monitor``): in still
+  periods the gyro bias change is re-estimated and subtracted from ``angular_velocity``,
+  and the calibration is checked against gravity and its temperature range
+  (``/diagnostics``, ``~/health``, ``~/reset_gyro_bias``).
+
+The math is :class:`core.correction.Corrector` (the filter); this module is the node:
+parameters, messages, diagnostics. One node per process: the Imu path is a callback
+group of its own that :func:`.common.run` spins on an executor of its own, sharing the
+node with the executor of everything else, so a ``__node:=`` remap names one node.
 
 Hot reload: ``calibration_file`` is checked every ``reload_period_s``; when its
 (mtime, size, inode) changes it is read with the one validating loader
@@ -51,210 +63,27 @@ import os
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data, QoSProfile,
                        ReliabilityPolicy)
 from sensor_msgs.msg import Imu, MagneticField, Temperature
 from std_srvs.srv import Trigger
 
-from .common import calibration_path, declare_parameters, Param, run, Throttled
+from .common import calibration_path, declare_parameters, Param, ParameterProblem, run, Throttled
+from .correction_monitor import NodeMonitor, PARAMS as MONITOR_PARAMS
 from ..core.constants import TESLA_PER_UT
+from ..core.correction import (Corrector, UNCALIBRATED_COVARIANCE,  # noqa: F401 - re-exported
+                               UNCALIBRATED_GYRO_BIAS_STD, UNCALIBRATED_STD, without_level)
 from ..core.errors import CalibrationError, InputError
 from ..dataio.calibration_file import load_calibration, save_calibration
 
-UNCALIBRATED_STD = 0.5
-"""Per-axis standard deviation reported while no calibration is loaded, m/s²."""
-UNCALIBRATED_COVARIANCE = np.diag([UNCALIBRATED_STD ** 2] * 3).reshape(9)
-UNCALIBRATED_GYRO_BIAS_STD = math.radians(2.5)
-"""Zero-rate offset left in an uncorrected gyro, rad/s (MPU-9250 datasheet ±5 °/s as 2σ)."""
 QUEUE_DEPTH = 100
 """Subscription and publisher queue depth: 0.1 s at 1 kHz, rides out a file reload."""
 LEVEL_BUFFER = 5000
 """Raw samples kept for ``~/level`` (5 s at 1 kHz)."""
 WARN_PERIOD_S = 30.0
 """Throttle of the repeated warnings (temperature outside the calibrated range)."""
-
-
-def _matrix_tuple(m):
-    return tuple(tuple(float(v) for v in row) for row in m)
-
-
-def _apply(m, x, y, z):
-    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = m
-    return (r00 * x + r01 * y + r02 * z,
-            r10 * x + r11 * y + r12 * z,
-            r20 * x + r21 * y + r22 * z)
-
-
-class Corrector:
-    """
-    Precomputed correction of one calibration: plain-float 3x3 math per sample.
-
-    :param cal: Calibration, or None for the pass-through.
-    """
-
-    def __init__(self, cal=None):
-        self.cal = cal
-        if cal is None:
-            self.M = None
-            self.L = None
-            self.bias = (0.0, 0.0, 0.0)
-            self.covariance = UNCALIBRATED_COVARIANCE.copy()
-            self.gyro_bias = None
-        else:
-            L = np.asarray(cal.level_rotation(), float)
-            R = np.linalg.inv(np.asarray(cal.T, float))
-            self.M = _matrix_tuple(L @ R)
-            self.L = None if np.array_equal(L, np.eye(3)) else _matrix_tuple(L)
-            self.bias = tuple(float(v) for v in cal.bias)
-            cov = L @ np.asarray(cal.acceleration_covariance(), float) @ L.T
-            self.covariance = np.ascontiguousarray(cov, dtype=np.float64).reshape(9)
-            self.gyro_bias = None if cal.gyro_bias is None else \
-                tuple(float(v) for v in cal.gyro_bias)
-            if not (np.all(np.isfinite(self.covariance)) and np.all(np.isfinite(self.M))
-                    and all(map(math.isfinite, self.bias))):
-                raise InputError('the calibration gives non-finite corrections')
-        self._drift_temp = None
-        self._coef = None
-        self.cov_key = None         # incoming covariances last judged (bytes) ...
-        self.wcov = None            # ... the angular-velocity covariance to publish for
-        self.cov_finite = True      # them (None = as it came), and whether all are finite
-        self._gyro_temp = None
-        self._banded_gyro = cal is not None and cal.thermal is not None and \
-            cal.thermal.gyro_bias(np.array([25.0])) is not None
-        self._imu_parts(cal)
-
-    def _imu_parts(self, cal):
-        """Precompute the gyroscope T and the magnetometer correction (interface.md §9, §10)."""
-        self.gyro_M = None          # L Tg⁻¹, or None without a gyro T
-        self.gyro_rate_var = 0.0    # (predicted accuracy)² / 3: variance per axis per |ω|²
-        self.mag_M = None           # L Rᵀ T⁻¹ of the magnetometer, or None
-        self.mag_hard_iron = (0.0, 0.0, 0.0)
-        self.mag_base_cov = None    # (9,) T²: calibration part, plus the fit's noise
-        self.mag_cal_var = 0.0      # T² per axis from the calibration's uncertainty
-        if cal is None:
-            return
-        L = np.asarray(cal.level_rotation(), float)
-        if cal.gyro_T is not None:
-            M = L @ np.linalg.inv(cal.gyro_T)
-            if not np.all(np.isfinite(M)):
-                raise InputError('the gyro calibration gives non-finite corrections')
-            self.gyro_M = _matrix_tuple(M)
-            acc = cal.gyro_predicted_accuracy
-            self.gyro_rate_var = 0.0 if acc is None else acc ** 2 / 3.0
-        mag = cal.magnetometer
-        if mag is not None:
-            M = L @ mag.correction
-            acc = mag.predicted_accuracy
-            self.mag_cal_var = 0.0 if acc is None else (acc * TESLA_PER_UT) ** 2 / 3.0
-            noise = mag.noise_std_uT     # without it an unknown covariance stays unknown
-            base = np.zeros((3, 3)) if noise is None else \
-                np.eye(3) * self.mag_cal_var + M @ M.T * (noise * TESLA_PER_UT) ** 2
-            self.mag_base_cov = np.ascontiguousarray(base, dtype=np.float64).reshape(9)
-            if not (np.all(np.isfinite(M)) and np.all(np.isfinite(mag.hard_iron_uT))):
-                raise InputError('the magnetometer calibration gives non-finite corrections')
-            self.mag_M = _matrix_tuple(M)
-            self.mag_hard_iron = tuple(float(v) for v in mag.hard_iron_uT)
-
-    def gyro_words(self):
-        """Say what the angular-velocity correction does ('none' without one)."""
-        if self.gyro_M is not None:
-            return 'bias, scale and misalignment'
-        return 'bias' if self.gyro_bias is not None else 'none'
-
-    def correct_mag(self, x, y, z):
-        """Corrected field (x, y, z) tesla from a raw one in tesla (needs ``mag_M``)."""
-        hx, hy, hz = self.mag_hard_iron
-        k = 1.0 / TESLA_PER_UT
-        x, y, z = _apply(self.mag_M, x * k - hx, y * k - hy, z * k - hz)
-        return x * TESLA_PER_UT, y * TESLA_PER_UT, z * TESLA_PER_UT
-
-    def mag_covariance(self, cov):
-        """
-        Return the covariance (9,) tesla² of a corrected field for the driver's ``cov`` (9,).
-
-        A known driver covariance is mapped through the correction; an unknown one (all
-        zeros or ``[0] = -1``) is replaced by the fit's per-sample noise mapped the same
-        way (zeros, unknown, when the file has no noise); the calibration's own
-        uncertainty is added on the diagonal.
-        """
-        c = np.asarray(cov, float).reshape(3, 3)
-        if c[0, 0] < 0.0 or not np.any(c):
-            return self.mag_base_cov
-        M = np.asarray(self.mag_M)
-        out = M @ c @ M.T + np.eye(3) * self.mag_cal_var
-        return np.ascontiguousarray(out, dtype=np.float64).reshape(9)
-
-    def coefficients(self, temp):
-        """Drift (quadratic, linear, offset) per axis at ``temp`` °C, or None (no drift)."""
-        cal = self.cal
-        if cal is None or cal.thermal is None or not cal.thermal.usable \
-                or not math.isfinite(temp):
-            return None
-        if temp != self._drift_temp:      # temperature changes far slower than samples
-            quad, lin, off = cal.thermal.coefficients(np.array([temp]))
-            coef = tuple(zip(quad[0].tolist(), lin[0].tolist(), off[0].tolist()))
-            self._coef = coef if all(map(math.isfinite, sum(coef, ()))) else None
-            self._drift_temp = temp
-        return self._coef
-
-    def correct(self, x, y, z, temp):
-        """Corrected (and levelled) (x, y, z) m/s² for one raw sample at ``temp`` °C."""
-        if self.M is None:
-            return x, y, z
-        bx, by, bz = self.bias
-        coef = self.coefficients(temp)
-        if coef is not None:
-            (qx, lx, ox), (qy, ly, oy), (qz, lz, oz) = coef
-            bx += qx * x * x + lx * x + ox
-            by += qy * y * y + ly * y + oy
-            bz += qz * z * z + lz * z + oz
-        return _apply(self.M, x - bx, y - by, z - bz)
-
-    def gyro_bias_at(self, temp):
-        """Return the gyro bias (3,) rad/s to subtract at ``temp`` °C, or None."""
-        if not self._banded_gyro or not math.isfinite(temp):
-            return self.gyro_bias
-        if temp != self._gyro_temp:
-            bias = self.cal.gyro_bias_at(np.array([temp]))[0]
-            self._gyro_at = tuple(float(v) for v in bias) \
-                if np.all(np.isfinite(bias)) else self.gyro_bias
-            self._gyro_temp = temp
-        return self._gyro_at
-
-    def correct_gyro(self, x, y, z, temp):
-        """Angular rate (x, y, z) rad/s without the bias (and T), in the levelled frame."""
-        bias = self.gyro_bias_at(temp)
-        if bias is not None:
-            x, y, z = x - bias[0], y - bias[1], z - bias[2]
-        if self.gyro_M is not None:
-            return _apply(self.gyro_M, x, y, z)
-        if self.L is not None:
-            return _apply(self.L, x, y, z)
-        return x, y, z
-
-    def gyro_covariance(self, cov):
-        """
-        Return the angular-velocity covariance to publish for the driver's ``cov`` (9,).
-
-        None (publish it as it came) when the driver reports none (``[0] = -1``) or
-        unknown (all zeros), or when the gyro bias is removed and neither a gyro T nor a
-        level trim maps it; else what is left (plus the uncorrected zero-rate offset),
-        mapped by ``L Tg⁻¹`` (the rate-dependent part of the calibration's uncertainty is
-        added per message: :attr:`gyro_rate_var`).
-        """
-        c = np.asarray(cov, float).reshape(3, 3)
-        if (self.gyro_bias is not None and self.L is None and self.gyro_M is None) \
-                or c[0, 0] < 0.0 or not np.any(c):
-            return None
-        if self.gyro_bias is None:
-            c = c + np.eye(3) * UNCALIBRATED_GYRO_BIAS_STD ** 2
-        M = self.gyro_M if self.gyro_M is not None else self.L
-        if M is not None:
-            M = np.asarray(M)
-            c = M @ c @ M.T
-        return np.ascontiguousarray(c, dtype=np.float64).reshape(9)
 
 
 def file_key(path):
@@ -264,6 +93,14 @@ def file_key(path):
     except OSError:
         return None
     return st.st_mtime_ns, st.st_size, st.st_ino
+
+
+def check_frame_id(value, name='level_frame_id'):
+    """Refuse a frame_id tf2 would not take (a leading '/', blanks); '' is the default."""
+    if value and (value.startswith('/') or any(c.isspace() for c in value)
+                  or not value.isprintable()):
+        raise ParameterProblem(f'parameter {name!r} must be a tf2 frame id (no leading '
+                               f"'/', no blanks), got {value!r}")
 
 
 PARAMS = [
@@ -280,7 +117,10 @@ PARAMS = [
     Param('diagnostics_period_s', 1.0,
           '/diagnostics period, s (checked every reload_period_s)', low=0.1, high=60.0,
           read_only=True),
-]
+    Param('level_frame_id', '',
+          "frame_id of imu/corrected and imu/mag_corrected while a level trim is applied ('' "
+          "= the raw frame_id + '_level'); without a trim the raw frame_id passes"),
+] + MONITOR_PARAMS
 
 
 class CorrectionNode(Node):
@@ -289,6 +129,7 @@ class CorrectionNode(Node):
     def __init__(self, **kwargs):
         super().__init__('accel_correction', **kwargs)
         self.params = declare_parameters(self, PARAMS, self._on_params)
+        check_frame_id(self.params['level_frame_id'])
         self.path = calibration_path(self.params['calibration_file'])
         self.corrector = Corrector(None)
         self.temperature = float('nan')
@@ -305,6 +146,8 @@ class CorrectionNode(Node):
         self._rate_hz = None        # messages per second, measured at each diagnostics tick
         self._rate_mark = (None, 0)
         self._recent = deque(maxlen=LEVEL_BUFFER)   # (t, ax, ay, az, temp) for ~/level
+        self._frames = ('', '')     # (raw frame_id, the one published) last seen
+        self.monitor = NodeMonitor(self)
         self.check_file(initial=True)
 
         pub_qos = QoSProfile(depth=QUEUE_DEPTH, history=HistoryPolicy.KEEP_LAST,
@@ -313,19 +156,17 @@ class CorrectionNode(Node):
         sub_qos = QoSProfile(depth=QUEUE_DEPTH, history=qos_profile_sensor_data.history,
                              reliability=qos_profile_sensor_data.reliability,
                              durability=qos_profile_sensor_data.durability)
-        # The stream runs on a second node with nothing else to wait on (no parameter
-        # services, timers or other subscriptions): main() spins it on its own
-        # executor, so each message costs no more executor work than a bare relay.
-        self.stream = Node('accel_correction_stream', context=kwargs.get('context'),
-                           start_parameter_services=False,
-                           parameter_overrides=[Parameter('start_type_description_service',
-                                                          value=False)])
-        self.pub = self.stream.create_publisher(Imu, 'imu/corrected', pub_qos)
-        self.stream.create_subscription(Imu, 'imu/data_raw', self.on_imu, sub_qos)
-        self.side_nodes = [self.stream]
+        # One node per process (a remap names exactly one node): the Imu path has a
+        # callback group of its own, which run() spins on an executor of its own (nothing
+        # else to wait on: no more executor work per message than a bare relay), the
+        # rest of the node on another thread (nodes/common.run).
+        self.stream_group = MutuallyExclusiveCallbackGroup()
+        self.pub = self.create_publisher(Imu, 'imu/corrected', pub_qos)
+        self.create_subscription(Imu, 'imu/data_raw', self.on_imu, sub_qos,
+                                 callback_group=self.stream_group)
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_subscription(Temperature, 'imu/temperature', self.on_temperature, sub_qos)
-        # The magnetometer (100 Hz) on this node: the stream node keeps the Imu path alone.
+        # The magnetometer (100 Hz) with the rest: the Imu path keeps its thread alone.
         self.mag_pub = self.create_publisher(MagneticField, 'imu/mag_corrected', pub_qos)
         self.create_subscription(MagneticField, 'imu/mag', self.on_mag, sub_qos)
         self.create_service(Trigger, '~/level', self.on_level)
@@ -343,6 +184,11 @@ class CorrectionNode(Node):
         if 'reload_period_s' in changes:
             self.destroy_timer(self._reload_timer)
             self._reload_timer = self.create_timer(changes['reload_period_s'], self._tick)
+        if 'level_frame_id' in changes:
+            check_frame_id(changes['level_frame_id'])
+            self._frames = ('', '')
+        if set(changes) & {p.name for p in MONITOR_PARAMS} | {'temperature_margin_c'}:
+            self.monitor.apply(changes)
 
     def _tick(self):
         """Check the file; publish /diagnostics when its period has passed."""
@@ -351,6 +197,8 @@ class CorrectionNode(Node):
         if now >= self._next_diagnostics:
             self._next_diagnostics = now + self.params['diagnostics_period_s']
             self.publish_diagnostics()
+            self.monitor.update_parameter()
+        self.monitor.publish_health()
 
     # -- the stream ------------------------------------------------------------------------
     def on_temperature(self, msg):
@@ -404,6 +252,19 @@ class CorrectionNode(Node):
                 self.get_logger().warning(
                     f'dropped {self._dropped} message(s) with a non-finite value')
             return
+        mon = self.monitor
+        if mon.active:      # the field monitor: one list append, a block every 0.1 s
+            buf = mon.buf
+            buf.append((x, y, z, gx, gy, gz, temp))
+            if len(buf) >= mon.block_n:
+                mon.flush(msg.header.stamp)
+            bx, by, bz = mon.bias
+            w.x, w.y, w.z = gx - bx, gy - by, gz - bz
+        if c.trimmed:       # levelled axes: the frame says so
+            h = msg.header
+            if h.frame_id != self._frames[0]:
+                self._frames = (h.frame_id, self.level_frame(h.frame_id))
+            h.frame_id = self._frames[1]
         self.pub.publish(msg)
 
     def on_mag(self, msg):
@@ -423,8 +284,19 @@ class CorrectionNode(Node):
             self._dropped += 1
             return
         msg.magnetic_field_covariance = cov
+        mon = self.monitor
+        if mon.active:
+            mon.mag.append((x / TESLA_PER_UT, y / TESLA_PER_UT, z / TESLA_PER_UT))
+        if c.trimmed:
+            h = msg.header
+            frames = self._frames
+            h.frame_id = frames[1] if h.frame_id == frames[0] else self.level_frame(h.frame_id)
         self._mag_published += 1
         self.mag_pub.publish(msg)
+
+    def level_frame(self, raw):
+        """Return the frame_id of the levelled output for a raw ``frame_id``."""
+        return self.params['level_frame_id'] or f'{raw or "imu_link"}_level'
 
     def magnetometer_state(self):
         """Say what happens to ``imu/mag`` (diagnostics)."""
@@ -476,6 +348,7 @@ class CorrectionNode(Node):
         self.corrector = corrector
         self._file_problem = ''
         cal = corrector.cal
+        self.monitor.use(cal)       # a new calibration: the field monitor starts afresh
         std = np.sqrt(np.diag(cal.acceleration_covariance()))
         acc = cal.predicted_accuracy
         self.get_logger().info(
@@ -539,7 +412,7 @@ class CorrectionNode(Node):
             data = np.array(rows, float)
             n = int(round(self.params['level_duration_s'] * (self._rate_hz or 100.0)))
             data = data[-max(n, 1):]
-            plain = Corrector(_without_level(cal))
+            plain = Corrector(without_level(cal))
             corrected = np.array([plain.correct(x, y, z, t) for x, y, z, t in data])
             trim = level_trim(corrected, cal.gravity)
             cal.level_roll_pitch_rad = (trim['roll_rad'], trim['pitch_rad'])
@@ -559,11 +432,6 @@ class CorrectionNode(Node):
                             f'{trim["samples"]} samples')
         self.get_logger().info(response.message)
         return response
-
-    def destroy_node(self):
-        """Destroy the stream node too."""
-        _destroy(self.stream)
-        return super().destroy_node()
 
     # -- diagnostics -----------------------------------------------------------------------
     def publish_diagnostics(self):
@@ -611,25 +479,9 @@ class CorrectionNode(Node):
                        'mag_samples': self._mag_samples,
                        'mag_corrected_published': self._mag_published})
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
-        array = DiagnosticArray(status=[status])
+        array = DiagnosticArray(status=[status] + self.monitor.statuses())
         array.header.stamp = self.get_clock().now().to_msg()
         self.diag_pub.publish(array)
-
-
-def _destroy(node):
-    """Destroy a node, ignoring a context already shut down."""
-    try:
-        node.destroy_node()
-    except Exception:                 # noqa: B902 - teardown must not mask the real exit
-        pass
-
-
-def _without_level(cal):
-    """Return a copy of ``cal`` without its level trim (the trim is measured afresh)."""
-    import copy
-    plain = copy.copy(cal)
-    plain.level_roll_pitch_rad = None
-    return plain
 
 
 def main(args=None):

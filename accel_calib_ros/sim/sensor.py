@@ -13,7 +13,7 @@ The forward model, for true specific force ``a`` (m/s², body frame), temperatur
 ``thermal_lag_s`` > 0, its first-order lag (the die warms up minutes behind the
 temperature sensor). ``w(t)`` is a random walk of the offset (``bias_random_walk``,
 m/s² per √s), zero unless switched on. Both need the session's history, so they act
-in ``sim.session`` (``iter_session``, ``simulate_session``,
+in ``sim.motion`` (``iter_session``, ``simulate_session``,
 ``simulate_static_windows``), not in
 ``distort``.
 

@@ -1,0 +1,197 @@
+"""
+The gyro bias at rest: re-estimated in still periods, never from motion, never from a turn.
+
+The tracker estimates the *residual* bias of the corrected rate (what is left after the
+calibration file's bias): ``published = corrected - estimate``. It starts at zero (the
+file is right) with a prior of ``prior`` per axis, and grows its uncertainty by
+``walk`` per √s between still periods (power-ups, temperature).
+
+In a still period (see :mod:`.still`; the trimmed, lagged blocks only, so the onset
+of the next motion is never in it), once it has lasted ``min_still_s``:
+
+- the accelerometer's block means must not tilt: the slope of gravity across itself
+  (a turn about a horizontal axis tilts gravity at the same rate) must be below
+  ``TEST_Z`` standard errors or ``TILT_FLOOR``; a tilting period is dropped whole;
+- the two components of the mean rate *across gravity* are then bias: a turn about a
+  horizontal axis would have tilted gravity;
+- the component *along gravity* is the one a constant turn in place (a robot turning
+  at 0.05 rad/s) hides in. It is measured only when something says the sensor does not
+  turn: the external stationary signal ("stationary"), or the magnetometer, whose
+  horizontal field must not turn by more than ``TEST_Z`` standard errors or
+  ``HEADING_FLOOR`` (a period that turns keeps the vertical component as it was, and
+  is said to turn). With neither, the vertical component is measured but held within
+  ``vertical_limit`` (plus 0.24 °/s per °C outside the calibrated temperature range,
+  the MPU-9250's ±30 °/s over 125 °C) of the file's bias: a turn in place slower than
+  that limit cannot be told from a bias, and at most that much of it is absorbed;
+- the estimate is a Kalman update of the one committed by the last period with the
+  period's mean (per-sample noise over √samples plus ``NOISE_FLOOR``), every component
+  within ``limit``, and the published estimate follows it at no more than ``SLEW`` per
+  second of still time (never while moving). A period that fails a test later is
+  dropped and the estimate returns to the committed one; a period that ends (motion)
+  commits its update.
+"""
+
+import math
+
+import numpy as np
+
+from .blocks import cross
+
+DEG = math.pi / 180.0
+TEST_Z = 3.29
+"""Standard errors beyond which a tilt or a turn is real (two-sided 1e-3)."""
+TILT_FLOOR = 0.005 * DEG
+"""Tilt rates below this are ignored, rad/s (slow thermal drift of the corrected mean)."""
+HEADING_FLOOR = 0.01 * DEG
+"""Turn rates the magnetometer sees below this are ignored, rad/s."""
+NOISE_FLOOR = 0.002 * DEG
+"""Error of a period's mean no averaging removes, rad/s (Earth's rate is 0.004 °/s)."""
+JUDGE_EVERY_S = 0.3
+"""Still time between two evaluations of the period so far, s (the cost stays tiny)."""
+SLEW = 1.0 * DEG
+"""Fastest change of the published estimate, rad/s per second of still time."""
+TEMPCO = 0.24 * DEG
+"""Allowance per °C outside the calibrated range, rad/s (MPU-9250: ±30 °/s over 125 °C)."""
+
+
+_EYE = np.eye(3)
+
+
+def _basis(u):
+    """Return two unit vectors across ``u`` (unit)."""
+    a = np.array([1.0, 0.0, 0.0]) if abs(u[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = cross(u, a)
+    e1 /= math.sqrt(float(e1 @ e1))
+    return e1, cross(u, e1)
+
+
+class GyroBiasTracker:
+    """
+    Residual gyro bias, re-estimated in still periods (see the module docstring).
+
+    :param min_still_s: still time before a period updates the estimate, s.
+    :param limit: largest residual bias per axis, rad/s.
+    :param vertical_limit: largest residual along gravity without a magnetometer or a
+        stationary signal, rad/s.
+    :param prior: standard deviation of the residual at start and after a reset, rad/s.
+    :param walk: growth of its standard deviation between periods, rad/s per √s.
+    """
+
+    def __init__(self, min_still_s=1.0, limit=5.0 * DEG, vertical_limit=1.0 * DEG,
+                 prior=1.0 * DEG, walk=0.5 * DEG / 60.0):
+        self.min_still_s = float(min_still_s)
+        self.limit = float(limit)
+        self.vertical_limit = float(vertical_limit)
+        self.prior, self.walk = float(prior), float(walk)
+        self.reset()
+
+    def reset(self, t=None):
+        """Forget every update: the file's bias again (residual zero), prior uncertainty."""
+        self.committed = np.zeros(3)
+        self.P = np.eye(3) * self.prior ** 2
+        self.t_commit = t
+        self.estimate = np.zeros(3)
+        self.updates = 0                    # periods committed
+        self.rejected = 0                   # periods dropped (tilt or external motion)
+        self.turning = 0                    # periods whose vertical part a turn kept out
+        self.state = 'waiting for a still period'
+        self.vertical = 'not measured yet'
+        self._candidate = None
+        self._dropped = False
+        self._turned = False
+        self._judged = 0.0
+
+    # -- one still period ----------------------------------------------------------------
+    def begin(self):
+        """Start a new still period."""
+        self._candidate = None
+        self._dropped = False
+        self._turned = False
+        self._judged = 0.0
+
+    def progress(self, run, dt, stationary=None, outside_c=0.0):
+        """
+        Update with the still period so far (called once per accepted block).
+
+        :param run: :class:`~.blocks.Run` of the period so far.
+        :param dt: still time since the last call, s (for the slew limit).
+        :param stationary: True (an external signal says stationary), None (unknown).
+        :param outside_c: °C the temperature lies outside the calibrated range (0 inside).
+        """
+        target = self.committed
+        if run.gyro is not None and not self._dropped and run.duration >= self.min_still_s:
+            if self._candidate is None or run.duration >= self._judged + JUDGE_EVERY_S:
+                self._judged = run.duration
+                self._candidate = self._judge(run, stationary, outside_c)
+            if self._candidate is not None:
+                target = self._candidate[0]
+        elif run.gyro is not None and not self._dropped:
+            self.state = (f'still for {run.duration:.1f} s: updating after '
+                          f'{self.min_still_s:g} s')
+        step = SLEW * max(dt, 0.0)
+        self.estimate = self.estimate + np.clip(target - self.estimate, -step, step)
+
+    def end(self, run):
+        """End the still period (motion or a gap): commit its update if it had one."""
+        if self._candidate is not None and not self._dropped:
+            self.committed, self.P = self._candidate
+            self.t_commit = run.t_stop
+            self.updates += 1
+        self.turning += self._turned
+        self._candidate = None
+
+    def _judge(self, run, stationary, outside_c):
+        """Return the (estimate, P) the period so far gives, or None when it is dropped."""
+        tilt, tilt_sd = run.tilt_rate()
+        if tilt > max(TEST_Z * tilt_sd, TILT_FLOOR):
+            self._dropped = True
+            self.rejected += 1
+            self.state = (f'holding: the last still period tilted at {tilt / DEG:.3f} deg/s '
+                          '(not used)')
+            return None
+        mean = run.accel_mean
+        u = mean / math.sqrt(float(mean @ mean))
+        e1, e2 = _basis(u)
+        rows = [e1, e2]
+        bounded = False
+        if stationary:
+            rows.append(u)
+            self.vertical = 'measured (the stationary signal says the robot is still)'
+        else:
+            rate, sd = run.heading_rate()
+            if math.isfinite(sd) and TEST_Z * sd < self._vertical_bound(outside_c):
+                if abs(rate) > max(TEST_Z * sd, HEADING_FLOOR):
+                    self._turned = True
+                    self.vertical = (f'holding: the magnetometer sees a turn about gravity '
+                                     f'of {rate / DEG:.3f} deg/s')
+                else:
+                    rows.append(u)
+                    self.vertical = (f'measured (the magnetometer sees no turn: below '
+                                     f'{max(TEST_Z * sd, HEADING_FLOOR) / DEG:.3f} deg/s)')
+            else:
+                rows.append(u)
+                bounded = True
+                self.vertical = ('measured within ±'
+                                 f'{self._vertical_bound(outside_c) / DEG:.2f} deg/s of the '
+                                 "file's bias (no magnetometer or stationary signal: a turn in "
+                                 'place slower than that looks like a bias)')
+        H = np.array(rows)
+        n = max(run.n, 1)
+        r = run.gyro_noise ** 2 / n + NOISE_FLOOR ** 2
+        grow = 0.0 if self.t_commit is None else max(run.t_stop - self.t_commit, 0.0)
+        P = self.P + _EYE * (self.walk ** 2 * grow)
+        S = H @ P @ H.T + _EYE[:len(rows), :len(rows)] * r
+        K = P @ H.T @ np.linalg.inv(S)
+        b = self.committed + K @ (H @ (run.gyro_mean - self.committed))
+        P = (_EYE - K @ H) @ P
+        if bounded:
+            bound = self._vertical_bound(outside_c)
+            along = float(u @ b)
+            b = b + u * (min(max(along, -bound), bound) - along)
+        b = np.clip(b, -self.limit, self.limit)
+        self.state = (f'updating from a still period of {run.duration:.1f} s '
+                      f'({len(rows)} components)')
+        return b, 0.5 * (P + P.T)
+
+    def _vertical_bound(self, outside_c):
+        return self.vertical_limit + TEMPCO * max(float(outside_c), 0.0)
