@@ -106,6 +106,8 @@ class Mpu9250Driver(Node):
         self.timestamp = p['timestamp']
         self.device_info = None
         self.published = 0
+        self.publish_errors = 0
+        self.last_publish_error = ''
         self.mag_published = 0
         self.mag_overflows = 0
         self.mag_held = 0
@@ -128,7 +130,7 @@ class Mpu9250Driver(Node):
             logger=self.get_logger(), on_samples=self._on_samples, on_info=self._handle_info,
             reconnect_min_s=p['reconnect_min_s'], reconnect_max_s=p['reconnect_max_s'],
             watchdog_s=p['watchdog_s'], temp_range=self._temp_range())
-        self._diag_prev = self.link.snapshot()
+        self._diag_prev = dict(self.link.snapshot(), published=0, publish_errors=0)
         self.create_timer(1.0, self._publish_diagnostics)
         self.link.start()
         self.get_logger().info(
@@ -290,20 +292,18 @@ class Mpu9250Driver(Node):
                 if frame.t_us is not None else clock - last
             send_temp = temp_period <= 0.0 or elapsed is None or elapsed < 0 or \
                 elapsed >= temp_period * 0.999
-            try:
-                self.imu_pub.publish(imu)
-                if send_temp:
-                    msg = Temperature()
-                    msg.header.stamp = stamp
-                    msg.header.frame_id = self.frame_id
-                    msg.temperature = temp
-                    msg.variance = 0.0
-                    self.temp_pub.publish(msg)
-                    self._last_temp_stamp = clock
-            except Exception:           # noqa: B902 - context shut down under us: stop
-                self.link.stop(timeout=0)
+            if self._publish(self.imu_pub, imu):
+                self.published += 1
+            elif self.link.stopped:
                 return
-            self.published += 1
+            if send_temp:
+                msg = Temperature()
+                msg.header.stamp = stamp
+                msg.header.frame_id = self.frame_id
+                msg.temperature = temp
+                msg.variance = 0.0
+                if self._publish(self.temp_pub, msg):
+                    self._last_temp_stamp = clock
             if frame.mag is not None:
                 self._publish_mag(frame.mag, stamp)
 
@@ -336,12 +336,31 @@ class Mpu9250Driver(Node):
         msg.header.frame_id = self.frame_id
         msg.magnetic_field.x, msg.magnetic_field.y, msg.magnetic_field.z = field
         msg.magnetic_field_covariance = self.mag_cov
+        if self._publish(self.mag_pub, msg):
+            self.mag_published += 1
+
+    def _publish(self, publisher, msg):
+        """
+        Publish one message; return whether it went out.
+
+        A failure (Fast DDS's transient "cannot publish data", say) is counted
+        (``publish_errors``), logged at most every 10 s and survived; only the end of the
+        context stops the reader.
+        """
         try:
-            self.mag_pub.publish(msg)
-        except Exception:               # noqa: B902 - context shut down under us: stop
-            self.link.stop(timeout=0)
-            return
-        self.mag_published += 1
+            publisher.publish(msg)
+            return True
+        except Exception as err:        # noqa: B902 - one failed publish must not end it
+            if not self.context.ok():
+                self.link.stop(timeout=0)
+                return False
+            self.publish_errors += 1
+            self.last_publish_error = f'{publisher.topic_name}: {type(err).__name__}: {err}'
+            self._log_throttled(
+                'publish', 'error',
+                f'could not publish on {self.last_publish_error}; the message is dropped and '
+                f'the driver goes on (publish_errors {self.publish_errors} in /diagnostics)')
+            return False
 
     # -- diagnostics ---------------------------------------------------------------------
 
@@ -356,7 +375,12 @@ class Mpu9250Driver(Node):
         return self.link.watchdog_reopens
 
     def _publish_diagnostics(self):
-        self.diag_pub.publish(self.diagnostics())
+        try:
+            self.diag_pub.publish(self.diagnostics())
+        except Exception as err:        # noqa: B902 - the node never dies on its report
+            if self.context.ok():
+                self._log_throttled('diagnostics', 'error',
+                                    f'diagnostics not published: {type(err).__name__}: {err}')
 
     def diagnostics(self):
         """
@@ -369,6 +393,9 @@ class Mpu9250Driver(Node):
         :return: DiagnosticArray with one DiagnosticStatus.
         """
         snap = self.link.snapshot()
+        snap['published'] = self.published
+        snap['publish_errors'] = self.publish_errors
+        snap['last_publish_error'] = self.last_publish_error
         prev, self._diag_prev = self._diag_prev, snap
         level, message = assess(snap, prev, self.params['watchdog_s'])
         status = DiagnosticStatus()

@@ -156,3 +156,18 @@ def test_assess_levels_from_snapshots():
     assert level == ERROR
     values = link_values(snapshot(counters={'frames': 1000}), prev)
     assert values['frame_rate_hz'] == '1000.0' and values['device_rate_hz'] == '1000.0'
+
+
+def test_assess_names_why_and_counts_failed_publishes():
+    prev = snapshot(time=9.0)
+    assert assess(snapshot(connected=False), prev, 0.5) == \
+        (ERROR, 'not connected: the port is not open yet')
+    assert assess(snapshot(connected=False, stopped=True), prev, 0.5) == \
+        (ERROR, 'not connected: the reader has stopped')
+    some = snapshot(counters={'frames': 1000}, published=990, publish_errors=10,
+                    last_publish_error='imu/data_raw: RuntimeError: cannot publish data')
+    level, message = assess(some, dict(prev, published=0, publish_errors=0), 0.5)
+    assert level == WARN and message.startswith('10 messages could not be published')
+    assert 'cannot publish data' in message and 'goes on' in message
+    none = dict(some, published=0, publish_errors=1000)
+    assert assess(none, dict(prev, published=0, publish_errors=0), 0.5)[0] == ERROR

@@ -35,11 +35,13 @@ def assess(snap, prev, watchdog_s):
     """
     Judge the link over the period from ``prev`` to ``snap``.
 
-    ERROR when not connected, when the firmware does not stream, when no valid frame
-    came for ``watchdog_s``, when the reader failed in the period or the link is badly
-    corrupted; WARN while waiting for the first frame after opening the port and when
-    frames were lost, CRC errors seen or the firmware recovered the sensor in the period;
-    OK only while frames flow cleanly.
+    ERROR when not connected (with the reason), when the firmware does not stream, when
+    no valid frame came for ``watchdog_s``, when the reader failed in the period, when no
+    message could be published in it, or when the link is badly corrupted; WARN while
+    waiting for the first frame after opening the port and when frames were lost, CRC
+    errors seen, some messages not published or the firmware recovered the sensor in the
+    period; OK only while frames flow cleanly. The node may add ``published``,
+    ``publish_errors`` and ``last_publish_error`` to the snapshots.
 
     :param snap: :meth:`SerialLink.snapshot` now.
     :param prev: the snapshot of the previous period (or one taken at start-up).
@@ -54,7 +56,9 @@ def assess(snap, prev, watchdog_s):
     recoveries, recoveries0 = _recoveries(snap), _recoveries(prev)
     silence = silence_s(snap)
     if not snap['connected']:
-        return ERROR, f'not connected: {snap["last_error"]}'
+        reason = snap['last_error'] or ('the reader has stopped' if snap.get('stopped')
+                                        else 'the port is not open yet')
+        return ERROR, f'not connected: {reason}'
     if info is not None and info.status != 0:
         return ERROR, f'firmware: {info.status_text}'
     if silence >= watchdog_s and (snap['last_frame_at'] is not None
@@ -68,6 +72,12 @@ def assess(snap, prev, watchdog_s):
                       else f'no valid frame for {silence:.1f} s')
     if snap['reader_errors'] > prev['reader_errors']:
         return ERROR, f'serial reader failed and was restarted: {snap["last_reader_error"]}'
+    failed = snap.get('publish_errors', 0) - prev.get('publish_errors', 0)
+    if failed:
+        published = snap.get('published', 0) - prev.get('published', 0)
+        return (ERROR if published <= 0 else WARN), (
+            f'{failed} messages could not be published in the last period '
+            f'({snap.get("last_publish_error", "")}); the driver goes on')
     if snap['binary'] and snap['strict']:
         return ERROR, (f'link badly corrupted (quality {snap["quality"]:.2f}): only frames '
                        'confirmed by both neighbours are published')
@@ -100,6 +110,7 @@ def link_values(snap, prev):
               'rejected': c['rejected'], 'reconnects': snap['reconnects'],
               'reader_errors': snap['reader_errors'],
               'watchdog_reopens': snap['watchdog_reopens'],
+              'publish_errors': snap.get('publish_errors', 0),
               'last_frame_age_s': f'{silence:.2f}' if math.isfinite(silence) else 'none',
               'format': snap['format'], 'timestamp': snap['timestamp'], 'baud': snap['baud']}
     if binary:

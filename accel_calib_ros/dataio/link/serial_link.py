@@ -354,7 +354,7 @@ class SerialLink:
         Keys: ``time`` (monotonic), ``counters`` (the parser's, with ``crc_errors``,
         ``lost_frames`` and ``rejected`` always present), ``connected``, ``last_error``,
         ``reconnects``, ``reader_errors``, ``last_reader_error``, ``watchdog_reopens``,
-        ``last_frame_at``, ``first_open_at``, ``opened_at``, ``binary``, ``format``,
+        ``last_frame_at``, ``first_open_at``, ``opened_at``, ``stopped``, ``binary``, ``format``,
         ``timestamp``, ``baud``, ``port``, ``info``, and for the binary format ``version``,
         ``quality``, ``strict``, ``jitter_us``, ``period_us``; ``drift_ppm`` with device
         timestamps.
@@ -370,7 +370,8 @@ class SerialLink:
                 'last_reader_error': self.last_reader_error,
                 'watchdog_reopens': self.watchdog_reopens,
                 'last_frame_at': self.last_frame_at, 'first_open_at': self.first_open_at,
-                'opened_at': self.opened_at, 'binary': self.binary, 'format': self.format,
+                'opened_at': self.opened_at, 'stopped': self._stop.is_set(),
+                'binary': self.binary, 'format': self.format,
                 'timestamp': self.timestamp, 'baud': self.baud, 'port': self.port,
                 'info': self.info}
         if self.binary:
