@@ -18,7 +18,8 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, MagneticField, Temperature
 
-from .common import declare_parameters, Param, ParameterProblem, run, Throttled
+from .common import (declare_parameters, hardware_id, Param, ParameterProblem, run,
+                     Throttled)
 from ..dataio.link import assess, link_values, SerialLink, SystemClock
 from ..dataio.wire import (ACCEL_LSB_PER_G, Converter, FRAME_V1_SIZE, FRAME_V2_SIZE,
                            GYRO_LSB_PER_DPS, MAG_AK8963, MagConverter, temp_counts_range,
@@ -400,7 +401,7 @@ class Mpu9250Driver(Node):
         level, message = assess(snap, prev, self.params['watchdog_s'])
         status = DiagnosticStatus()
         status.name = f'{self.get_name()}: serial'
-        status.hardware_id = snap['port']
+        status.hardware_id = hardware_id(self.frame_id)
         status.level = bytes((level,))
         status.message = message
         values = link_values(snap, prev)

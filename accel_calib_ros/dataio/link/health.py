@@ -112,7 +112,8 @@ def link_values(snap, prev):
               'watchdog_reopens': snap['watchdog_reopens'],
               'publish_errors': snap.get('publish_errors', 0),
               'last_frame_age_s': f'{silence:.2f}' if math.isfinite(silence) else 'none',
-              'format': snap['format'], 'timestamp': snap['timestamp'], 'baud': snap['baud']}
+              'format': snap['format'], 'timestamp': snap['timestamp'], 'port': snap['port'],
+              'baud': snap['baud']}
     if binary:
         values['link_quality'] = f'{snap["quality"]:.3f}'
         values['frames_v1'] = c['frames_v1']
