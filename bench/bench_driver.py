@@ -10,19 +10,32 @@ for a stream of uniformly random axes (no plausibility check can help there) and
 sensor-like stream (gravity plus noise), with 2 % and 20 % of the bytes XORed with a
 random non-zero byte, for both frame versions: garbage frames published per 10⁶ (a
 published frame that was not sent) and intact frames lost. bench/bench_reliability.py has
-the other kinds of damage (drops, insertions, bursts)::
+the other kinds of damage (drops, insertions, bursts).
+
+The clock sweep (issue 26 item 6): a board whose µs clock is -5000..+5000 ppm off streams
+at 1 kHz through the simulated USB-serial transport (sim/transport.py: 1 ms USB frames, or
+an Uno's 64-byte packets, reader latency and stalls) for ``--clock-seconds``; per row the
+share of stamps within 1 ms of the true sample time (plus the transport's smallest delay,
+which no host can see), the largest error, stamps not after their predecessor
+(backwards), steps under 45 % of a period (bunched), the range of the steps over the
+period, and the rate error the mapping found::
 
     python bench/bench_driver.py [--frames 100000] [--garbage-frames 1000000]
+                                 [--clock-seconds 60]
 """
 
 import argparse
 import sys
 import time
 
-from accel_calib_ros.dataio.wire import (AsciiLineParser, ClockMapper, Converter, encode,
+from accel_calib_ros.dataio.wire import (AsciiLineParser, Converter, encode,
                                          encode_ascii_line, FRAME_SIZE, FRAME_V2_SIZE,
                                          FrameParser, RawFrame, SPIKE_COUNTS)
+from accel_calib_ros.dataio.wire.clock import Stamper
+from accel_calib_ros.sim.transport import stamp_quality, stamp_reads, usb_reads
 import numpy as np
+
+CLOCK_PPM = (-5000, -3000, -2000, -1000, 0, 1000, 2000, 3000, 5000)
 
 
 def frame(k, t_us, counts, version):
@@ -99,6 +112,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     ap.add_argument('--frames', type=int, default=100_000)
     ap.add_argument('--garbage-frames', type=int, default=1_000_000)
+    ap.add_argument('--clock-seconds', type=float, default=60.0,
+                    help='seconds of stream per row of the clock sweep (0: no sweep)')
     ap.add_argument('--spike', action='store_true',
                     help='garbage test with the optional spike check (band-limited signals)')
     args = ap.parse_args()
@@ -108,10 +123,12 @@ def main():
         status |= cpu_table(args.frames, rng, version)
     frames, _ = make_stream(args.frames, rng)
     status |= other_costs(frames, rng)
+    if args.clock_seconds > 0:
+        status |= clock_table(args.clock_seconds)
     if args.garbage_frames > 0:
         status |= garbage_table(args.garbage_frames, rng, args.spike) != 0
     if status:
-        print('bench_driver: FAILED (frames lost)', file=sys.stderr)
+        print('bench_driver: FAILED (frames lost, or stamps off)', file=sys.stderr)
     return status
 
 
@@ -144,16 +161,18 @@ def cpu_table(n, rng, version):
 
 
 def other_costs(frames, rng):
-    """Print the cost of the clock mapper, the converter and the ASCII parser."""
-    mapper = ClockMapper()
+    """Print the cost of the stamps, the converter and the ASCII parser."""
+    stamper = Stamper('device')
     conv = Converter()
     host = 1.7e9 + np.arange(len(frames)) / 200.0 + rng.uniform(0, 0.004, len(frames))
     start = time.process_time()
-    for f, h in zip(frames, host.tolist()):
-        mapper.update(f.t_us, h)
-        conv.to_si(f.counts)
+    for k in range(0, len(frames), 4):              # reads of 4 frames
+        stamper.stamps(stamper.observe(frames[k:k + 4], float(host[min(k + 3, len(host) - 1)])))
+        for f in frames[k:k + 4]:
+            conv.to_si(f.counts)
     cpu = time.process_time() - start
-    print(f'  ClockMapper.update + Converter.to_si: {len(frames) / cpu:10,.0f} frames/s CPU')
+    print(f'  Stamper (observe + stamps) + Converter.to_si: {len(frames) / cpu:10,.0f} '
+          'frames/s CPU')
 
     text = b''.join(encode_ascii_line(f.counts, f.t_us) for f in frames[:20000])
     ascii_parser = AsciiLineParser()
@@ -164,6 +183,33 @@ def other_costs(frames, rng):
     cpu = time.process_time() - start
     print(f'  ASCII lines: {n / cpu:10,.0f} lines/s CPU (bad lines {ascii_parser.bad_lines})')
     return 0
+
+
+def clock_table(seconds):
+    """Print the clock sweep; return 1 when a row at ±3000 ppm misses its targets."""
+    print(f'clock sweep: {seconds:g} s at 1 kHz per row; error = stamp - (sample time + '
+          'smallest transport delay)')
+    status = 0
+    for transport in ('usb', 'packets'):
+        for timestamp in ('device', 'host'):
+            ppms = CLOCK_PPM if timestamp == 'device' else (-3000, 3000)
+            for ppm in ppms:
+                t_us, true, reads = usb_reads(seconds, 1000.0, ppm,
+                                              np.random.default_rng(abs(ppm) + 1), transport)
+                stamps, stamper = stamp_reads(t_us, reads, timestamp)
+                q = stamp_quality(stamps, true)
+                settled = stamp_quality(stamps[2000:], true[2000:])
+                print(f'  {transport:7s} {timestamp:6s} {ppm:+6d} ppm: within 1 ms '
+                      f'{100 * q["within_1ms"]:6.2f} % (after 2 s '
+                      f'{100 * settled["within_1ms"]:6.2f} %), max {q["max_ms"]:5.2f} ms, '
+                      f'p99 {q["p99_ms"]:5.2f} ms, backwards {q["backwards"]}, bunched '
+                      f'{q["bunched"]}, steps {q["spacing"][0]:.3f}..'
+                      f'{q["spacing"][1]:.3f} of a period, rate error found '
+                      f'{stamper.mapper.drift_ppm:+8.1f} ppm')
+                if timestamp == 'device' and abs(ppm) <= 3000 and (
+                        q['within_1ms'] < 0.99 or q['backwards'] or q['bunched']):
+                    status = 1
+    return status
 
 
 if __name__ == '__main__':

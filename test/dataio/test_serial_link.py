@@ -76,7 +76,7 @@ def test_a_missing_port_is_retried_with_back_off_and_logged_once():
         return opener(*args)
     link, _, got, log = make_link(device, clock, reconnect_max_s=2.0)
     link.open_port = counting_opener
-    run_link(link, 12.0)
+    run_link(link, 14.0)
     gaps = [round(b - a, 3) for a, b in zip(attempts, attempts[1:])]
     assert gaps[:5] == [0.2, 0.4, 0.8, 1.6, 2.0]
     assert got['frames'] and link.connected

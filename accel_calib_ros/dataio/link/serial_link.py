@@ -16,7 +16,8 @@ import time
 
 import serial
 
-from ..wire import AsciiLineParser, ClockMapper, FrameParser
+from ..wire import AsciiLineParser, FrameParser
+from ..wire.clock import Stamper
 
 READ_TIMEOUT_S = 0.05
 """A read returns after this long without a byte."""
@@ -27,6 +28,8 @@ LOG_PERIOD_S = 10.0
 OPEN_GRACE_S = 2.0
 """The watchdog does not reopen a port within this many seconds of opening it (an Arduino
 Uno resets when its port is opened: bootloader and sensor start-up take about 1.5 s)."""
+HOLD_MAX_S = 1.5
+"""Frames are never held back longer than this (waiting for the clock mapping to settle)."""
 PORT_ERRORS = (OSError, serial.SerialException, ValueError)
 
 
@@ -105,7 +108,8 @@ class SerialLink:
         self.parser = FrameParser(temp_range=temp_range) if fmt == 'binary' \
             else AsciiLineParser()
         self.binary = fmt == 'binary'
-        self.clock_mapper = ClockMapper()
+        self.stamper = Stamper(timestamp)
+        self._queue = []                # (frame, stamp token, arrival): not yet delivered
         self.info = None                # the firmware's last info frame
         self.connected = False
         self.reconnects = 0
@@ -117,7 +121,6 @@ class SerialLink:
         self.first_open_at = None
         self.last_frame_at = None       # monotonic time of the last valid frame
         self._port = None
-        self._prev_stamp = None
         self._info_requests = 0
         self._watchdog_wait = watchdog_s
         self._delay = reconnect_min_s
@@ -187,8 +190,6 @@ class SerialLink:
                 f'serial reader failed ({self.last_reader_error}); restarting it '
                 f'(reader_errors {self.reader_errors} in /diagnostics)')
             self.parser.reset()         # the partial frame and the sequence are suspect
-            self.clock_mapper.reset()
-            self._prev_stamp = None
             self.clock.sleep(READ_TIMEOUT_S, self._stop)
 
     def _step(self):
@@ -222,8 +223,8 @@ class SerialLink:
         host = self.clock.host()
         if data:
             self._handle(self.parser.feed(data), host)
-        elif self.binary:
-            self._deliver(self.parser.flush(), host)
+        else:                           # a pause: the held newest frame, and what waited
+            self._deliver(self.parser.flush() if self.binary else [], host)
         self._maybe_request_info()
 
     def _open(self):
@@ -244,8 +245,6 @@ class SerialLink:
             self._delay = min(self._delay * 2.0, self.reconnect_max_s)
             return False
         self.parser.reset()
-        self.clock_mapper.reset()
-        self._prev_stamp = None
         first_open = self.opened_at is None
         self.opened_at = self.clock.monotonic()
         if first_open:
@@ -306,6 +305,11 @@ class SerialLink:
 
     # -- frames --------------------------------------------------------------------------
 
+    @property
+    def clock_mapper(self):
+        """The device clock mapping (:class:`~accel_calib_ros.dataio.wire.clock.ClockMapper`)."""
+        return self.stamper.mapper
+
     def _handle(self, frames, host):
         if self.binary:
             for info in self.parser.take_infos():
@@ -314,36 +318,20 @@ class SerialLink:
         self._deliver(frames, host)
 
     def _deliver(self, frames, host):
-        if not frames:
-            return
-        self.last_frame_at = self.clock.monotonic()
-        self._watchdog_wait = self.watchdog_s
-        self.on_samples(frames, self._stamps(frames, host))
-
-    def _stamps(self, frames, host_s):
-        if frames[-1].t_us is None:
-            return [host_s] * len(frames)
-        if self.timestamp == 'device':
-            mapper = self.clock_mapper
-            out = []
-            prev = self._prev_stamp
-            for f in frames:
-                if f.t_us is None:
-                    stamp = host_s
-                    prev = None
-                else:
-                    stamp = mapper.update(f.t_us, host_s)
-                    if prev is not None and stamp <= prev + 1e-6:
-                        # A start-up burst maps many samples onto one receive time (the
-                        # mapping is causal): keep the stamps strictly increasing.
-                        stamp = prev + 1e-6
-                    prev = stamp
-                out.append(stamp)
-            self._prev_stamp = prev
-            return out
-        last = frames[-1].t_us
-        return [host_s - (((last - f.t_us) & 0xFFFFFFFF) * 1e-6 if f.t_us is not None else 0.0)
-                for f in frames]
+        """Queue a read's frames with their stamp tokens; hand on what need not wait."""
+        if frames:
+            now = self.clock.monotonic()
+            self.last_frame_at = now
+            self._watchdog_wait = self.watchdog_s
+            tokens = self.stamper.observe(frames, host)
+            self._queue.extend((f, t, now) for f, t in zip(frames, tokens))
+        if self._queue and (self.stamper.ready or
+                            self.clock.monotonic() - self._queue[0][2] >= HOLD_MAX_S):
+            # Stamped now, not on arrival: a burst that waited in the OS buffer before the
+            # mapping settled is placed by the device clock, not at its arrival.
+            queue, self._queue = self._queue, []
+            self.on_samples([f for f, _, _ in queue],
+                            self.stamper.stamps([t for _, t, _ in queue]))
 
     # -- state for the diagnostics -------------------------------------------------------
 
@@ -380,4 +368,5 @@ class SerialLink:
                          'period_us': parser.period_us})
         if self.timestamp == 'device':
             snap['drift_ppm'] = self.clock_mapper.drift_ppm
+        snap['stamps_clamped'] = self.stamper.clamped
         return snap
