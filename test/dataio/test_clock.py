@@ -79,15 +79,22 @@ def test_envelope_line_is_the_lower_hull_edge_over_the_mean():
 @pytest.mark.parametrize('transport', ['usb', 'packets'])
 @pytest.mark.parametrize('ppm', [-5000, -3000, 0, 3000, 5000])
 def test_stamps_track_a_resonator_within_a_millisecond(ppm, transport):
+    """
+    Within 1 ms once settled (about a second), never backwards, never bunched.
+
+    The first second is the transport's ambiguity: a sample's smallest delay shows only
+    once the USB frames have beaten through a whole cycle against the sensor's clock.
+    """
     t_us, true, reads = usb_reads(15.0, 1000.0, ppm, np.random.default_rng(3), transport)
     stamps, stamper = stamp_reads(t_us, reads)
     q = stamp_quality(stamps, true)
-    assert q['within_1ms'] >= 0.99 and q['max_ms'] < 1.5, q
+    assert q['within_1ms'] >= 0.95 and q['max_ms'] < 2.0, q
     assert q['backwards'] == 0 and q['bunched'] == 0 and stamper.clamped == 0
-    assert 0.99 < q['spacing'][0] and q['spacing'][1] < 1.01   # only the rate, ± its slew
+    assert 0.975 < q['spacing'][0] and q['spacing'][1] < 1.025
+    settled = stamp_quality(stamps[2000:], true[2000:])
+    assert settled['within_1ms'] == 1.0 and settled['max_ms'] < 1.0, settled
+    assert 0.994 < settled['spacing'][0] and settled['spacing'][1] < 1.006   # rate, ± jitter
     assert stamper.mapper.drift_ppm == pytest.approx(ppm, abs=20)
-    late = np.abs(stamps - true - 0.0003)[3000:]
-    assert np.max(late) < 1e-3                         # once the mapping has settled
 
 
 def merged(reads, first, end):

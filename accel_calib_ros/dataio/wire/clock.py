@@ -15,6 +15,8 @@ import collections
 
 WRAP = 0x100000000
 """The device clock wraps at 2**32 µs."""
+MAX_RATE_ERROR = 0.02
+"""No microcontroller clock is off by more than 2 % (ceramic resonators: 0.5 %)."""
 
 
 def _lower_hull(points):
@@ -74,7 +76,8 @@ class ClockMapper:
     correction``: after a refit the stamps do not step to the new line; the correction
     (applied line minus new line) decays at ``max_slew`` s/s, or ``|correction| / slew_tau_s``
     when that is faster (at most ``fast_slew``): the slew limits only that correction, never
-    the rate. A correction beyond ``step_s`` is applied at once.
+    the rate (in the first ``young_s`` of an epoch: ``|correction| / young_tau_s``). A
+    correction beyond ``step_s`` is applied at once.
 
     The device clock is unwrapped (uint32 µs). A clock that steps backwards (a device
     restart) starts a new epoch (``resets``): the old samples keep the old line. A point
@@ -95,11 +98,16 @@ class ClockMapper:
     :param resettle_s: the same for a later epoch (the rate is known by then).
     :param shift_s: device seconds of recent blocks for the upward-shift test.
     :param shift_min_s: all of them this far above the line: the older points go.
+    :param young_s: for this many device seconds of an epoch, a correction decays at
+        ``|correction| / young_tau_s`` (the first fits improve fast).
+    :param young_tau_s: see ``young_s``.
+    :param backlog_s: a first read spanning this much device time is a backlog.
     """
 
     def __init__(self, block_s=0.1, window_s=20.0, jump_s=0.5, max_slew=1e-3,
                  slew_tau_s=1.0, fast_slew=0.05, step_s=1.0, settle_s=1.0, resettle_s=0.25,
-                 shift_s=2.0, shift_min_s=0.002):
+                 shift_s=2.0, shift_min_s=0.002, young_s=5.0, young_tau_s=0.3,
+                 backlog_s=0.05):
         self.block_s = float(block_s)
         self.window_s = float(window_s)
         self.jump_s = float(jump_s)
@@ -109,6 +117,9 @@ class ClockMapper:
         self.step_s = float(step_s)
         self.settle_s = float(settle_s)
         self.resettle_s = float(resettle_s)
+        self.young_s = float(young_s)
+        self.young_tau_s = float(young_tau_s)
+        self.backlog_s = float(backlog_s)
         self.shift_s = float(shift_s)
         self.shift_min_s = float(shift_min_s)
         self.resets = 0
@@ -135,6 +146,7 @@ class ClockMapper:
         self._line_before = None    # the line a rebase dropped, until the next fit
         self._corr = (0.0, 0.0, 0.0)    # correction at dev, and its decay rate
         self._mapped_dev = None     # device time of the newest stamp given in this epoch
+        self._backlog = None        # the epoch's first read held a backlog (old samples)
 
     def reset(self):
         """Forget the mapping (the device restarted): a new epoch; the rate is kept."""
@@ -152,14 +164,20 @@ class ClockMapper:
     @property
     def ready(self):
         """
-        Whether the epoch has seen enough host time for its first stamps.
+        Whether the epoch's first stamps can be given now.
 
-        ``settle_s`` while the rate is unknown (the first epoch: the lowest delays of a USB
-        link show within about a second), ``resettle_s`` once an earlier epoch measured it.
-        Until then a start-up burst is best held: it is then placed by the device clock.
+        At once, unless its first read brought a backlog (``backlog_s`` of samples or more
+        that waited, in the OS buffer say): then not before the epoch has seen ``settle_s``
+        of host time while the rate is unknown (the lowest delays of a USB link show within
+        about a second), ``resettle_s`` once an earlier epoch measured it, so that the
+        backlog is placed by its device clock, not at its arrival.
         """
+        if self._first_host is None:
+            return False
+        if not self._backlog:
+            return True
         settle = self.resettle_s if self._rate_known else self.settle_s
-        return self._first_host is not None and self._last_host - self._first_host >= settle
+        return self._last_host - self._first_host >= settle
 
     # -- input ---------------------------------------------------------------------------
 
@@ -185,6 +203,9 @@ class ClockMapper:
             self._last_raw = t_us
             out.append((self.epoch, self._dev))
         if out:
+            if self._backlog is None:
+                first = next((d for e, d in out if e == self.epoch), self._dev)
+                self._backlog = self._dev - first >= self.backlog_s
             self._last_host = host_s
             self._point(self._dev, host_s - self._host0 - self._dev)
         return out
@@ -229,6 +250,9 @@ class ClockMapper:
         at = self._mapped_dev
         applied = self._applied(at) if old is not None and at is not None else None
         a, b = envelope_line(points, old[1] if old is not None else self._b_prior)
+        if abs(b) > MAX_RATE_ERROR:         # noise over a short span: keep it plausible
+            b = max(-MAX_RATE_ERROR, min(MAX_RATE_ERROR, b))
+            a = min(y - b * x for x, y in points)
         self._line = (a, b)
         self._line_before = None
         self._b_prior = b
@@ -237,7 +261,8 @@ class ClockMapper:
         corr = 0.0 if applied is None else applied - (a + b * at)
         if abs(corr) > self.step_s:
             corr = 0.0
-        rate = min(max(self.max_slew, abs(corr) / self.slew_tau_s), self.fast_slew)
+        tau = self.young_tau_s if dev < self.young_s else self.slew_tau_s
+        rate = min(max(self.max_slew, abs(corr) / tau), self.fast_slew)
         self._corr = (corr, at or 0.0, rate)
         self._lines[self.epoch] = (self._host0, a, b) + self._corr
         for old_epoch in [e for e in self._lines if e < self.epoch - 1]:
