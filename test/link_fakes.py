@@ -17,6 +17,9 @@ from accel_calib_ros.dataio.wire import (encode_frame, encode_frame_v2, encode_i
                                          encode_info_v2, InfoFrame, MAG_ABSENT)
 
 
+FRAME_SYNCS = (b'\xa5\x5a', b'\xa5\x5b')
+
+
 class FakeClock:
     """Monotonic and host time that move only when someone waits or reads."""
 
@@ -49,7 +52,7 @@ class FakeDevice:
     """
 
     def __init__(self, clock, rate_hz=500.0, ppm=0.0, version=2, info='default',
-                 delay_s=0.0005, t0_us=4_294_000_000):
+                 delay_s=0.0005, t0_us=4_294_000_000, streaming=True):
         self.clock = clock
         self.rate = rate_hz
         self.ppm = ppm
@@ -58,6 +61,7 @@ class FakeDevice:
             info = InfoFrame(0, 0x71, 2, 250, int(rate_hz), 1, 1_000_000, (2, 0),
                              version, MAG_ABSENT, info_version=2)
         self.info = info
+        self.streaming = streaming
         self.delay_s = delay_s
         self.t0_us = t0_us
         self.start = clock.t
@@ -71,6 +75,7 @@ class FakeDevice:
         self.unplugs = []           # (start, end) true times
         self.restarts = []          # true times
         self.flushed = 0            # bytes dropped by an opener that flushes
+        self.vanished = 0           # frames sent but lost with the tty at an unplug
         self.opens = 0
         self.requests = 0
         self.port = None
@@ -96,15 +101,21 @@ class FakeDevice:
                     self.index0, self.seq0 = self.made, 0
                     self._info_due = t
             plugged = not self._in(self.unplugs, t)
-            if plugged and not self._plugged and self.port is not None:
-                self.port.dead = True               # the device went away under it
+            if not plugged and self._plugged:       # the device goes away, its tty too
+                if self.port is not None:
+                    self.port.dead = True
+                self.vanished += sum(1 for _, d in self.buffer if d[:2] in FRAME_SYNCS)
+                self.buffer = []
             self._plugged = plugged
-            if plugged and self.info is not None and t >= self._info_due:
+            stalled = self._in(self.stalls, t)
+            if plugged and not stalled and self.info is not None and t >= self._info_due:
                 self._emit(t, self._info_bytes())
                 self._info_due = t + 1.0
             k = self.made - self.index0
             self.made += 1
-            if not plugged or self._in(self.stalls, t):
+            if not self.streaming:
+                continue
+            if not plugged or stalled:
                 self.never_sent += 1
                 continue
             dev_us = self.t0_us + round(k * 1e6 / self.rate * (1 + self.ppm * 1e-6)) \
@@ -126,7 +137,9 @@ class FakeDevice:
     def answer_request(self):
         """Answer a request for the info frame at once, as the firmware does."""
         self.requests += 1
-        if self.info is not None and not self._in(self.unplugs, self.clock.t):
+        t = self.clock.t
+        if self.info is not None and not self._in(self.unplugs, t) and \
+                not self._in(self.stalls, t):
             self._emit(self.clock.t, self._info_bytes())
 
     def plugged(self):
@@ -198,6 +211,13 @@ class FakePort:
         if b'?' in data:
             self.device.answer_request()
         return len(data)
+
+    def reset_input_buffer(self):
+        dev = self.device
+        dev.advance()
+        due = [(t, d) for t, d in dev.buffer if t <= dev.clock.t]
+        dev.flushed += sum(len(d) for _, d in due)
+        dev.buffer = [(t, d) for t, d in dev.buffer if t > dev.clock.t]
 
     def close(self):
         self.closed = True

@@ -105,7 +105,8 @@ class Mpu9250Driver(Node):
                                    f"got {p['reconnect_max_s']:g} < {p['reconnect_min_s']:g}")
         self.format = p['format']
         self.timestamp = p['timestamp']
-        self.device_info = None
+        self.device_info = None         # the info frame of this connection
+        self._last_info = None          # the last one logged
         self.published = 0
         self.publish_errors = 0
         self.last_publish_error = ''
@@ -129,8 +130,9 @@ class Mpu9250Driver(Node):
         self.link = SerialLink(
             p['port'], p['baud'], self.format, self.timestamp, clock=_NodeClock(self),
             logger=self.get_logger(), on_samples=self._on_samples, on_info=self._handle_info,
-            reconnect_min_s=p['reconnect_min_s'], reconnect_max_s=p['reconnect_max_s'],
-            watchdog_s=p['watchdog_s'], temp_range=self._temp_range())
+            on_connect=self._on_connect, reconnect_min_s=p['reconnect_min_s'],
+            reconnect_max_s=p['reconnect_max_s'], watchdog_s=p['watchdog_s'],
+            temp_range=self._temp_range(), hold_for_info=self._hold_for_info())
         self._diag_prev = dict(self.link.snapshot(), published=0, publish_errors=0)
         self.create_timer(1.0, self._publish_diagnostics)
         self.link.start()
@@ -182,8 +184,13 @@ class Mpu9250Driver(Node):
             link.reconnect_min_s = p['reconnect_min_s']
             link.reconnect_max_s = p['reconnect_max_s']
             link.watchdog_s = p['watchdog_s']
+            link.hold_for_info = self._hold_for_info()
             if link.binary:
                 link.parser.temp_range = self._temp_range()
+
+    def _hold_for_info(self):
+        """Whether frames wait for the info frame: it sets what they are converted with."""
+        return self.params['ranges_from_device'] or self.params['chip'] == 'auto'
 
     @staticmethod
     def _diagonal(stddev):
@@ -203,10 +210,18 @@ class Mpu9250Driver(Node):
 
     # -- device information --------------------------------------------------------------
 
+    def _on_connect(self):
+        """Forget the info frame: the port was (re)opened, the device may have changed."""
+        self.device_info = None
+        self._apply_settings()
+
     def _handle_info(self, info):
-        old = self.device_info
-        self.device_info = info
-        if old is not None and old == info:
+        """Take an info frame: the settings from it, and a log line when it says news."""
+        if info != self.device_info:
+            self.device_info = info
+            self._apply_settings()
+        old, self._last_info = self._last_info, info
+        if old == info:
             return
         log = self.get_logger()
         if old is not None and info.recoveries > old.recoveries and \
@@ -232,7 +247,6 @@ class Mpu9250Driver(Node):
         if info.baud != self.params['baud']:
             log.warning(f'the firmware sends at {info.baud} baud but the port is opened at '
                         f'{self.params["baud"]}: set parameter baud to {info.baud}')
-        self._apply_settings()
 
     def _check_capacity(self):
         """Warn once when the baud rate cannot carry the sample rate (reader thread)."""

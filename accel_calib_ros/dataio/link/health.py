@@ -35,7 +35,9 @@ def assess(snap, prev, watchdog_s):
     """
     Judge the link over the period from ``prev`` to ``snap``.
 
-    ERROR when not connected (with the reason), when the firmware does not stream, when
+    ERROR when not connected (with the reason), when the firmware says it does not stream
+    (while it keeps saying so: a status older than the info frame's repetition is stale and
+    the silence is reported instead, with what the firmware said), when
     no valid frame came for ``watchdog_s``, when the reader failed in the period, when no
     message could be published in it, or when the link is badly corrupted; WARN while
     waiting for the first frame after opening the port and when frames were lost, CRC
@@ -59,13 +61,16 @@ def assess(snap, prev, watchdog_s):
         reason = snap['last_error'] or ('the reader has stopped' if snap.get('stopped')
                                         else 'the port is not open yet')
         return ERROR, f'not connected: {reason}'
-    if info is not None and info.status != 0:
+    if info is not None and info.status != 0 and snap.get('status_current', True):
         return ERROR, f'firmware: {info.status_text}'
     if silence >= watchdog_s and (snap['last_frame_at'] is not None
                                   or silence >= OPEN_GRACE_S):
         message = f'no valid frame for {silence:.1f} s'
         if snap['watchdog_reopens']:
             message += f' (port reopened {snap["watchdog_reopens"]} times)'
+        if info is not None and info.status != 0:     # stale: the link went silent since
+            message += (f'; {snap["info_age_s"]:.0f} s ago the firmware said: '
+                        f'{info.status_text}')
         return ERROR, message
     if rate <= 0 or silence >= watchdog_s:
         return WARN, ('connected, waiting for the first frame' if snap['last_frame_at'] is None
@@ -106,11 +111,16 @@ def link_values(snap, prev):
     values = {'frame_rate_hz': f'{_rate(snap, prev):.1f}', 'frames': c['frames'],
               'frame_version': version if version else ('ascii' if not binary else 'none'),
               'crc_errors': c['crc_errors'], 'lost_frames': c['lost_frames'],
+              'gaps_uncounted': c.get('gaps_uncounted', 0),
               'bytes_skipped': c['bytes_skipped'], 'connected': snap['connected'],
               'rejected': c['rejected'], 'reconnects': snap['reconnects'],
               'reader_errors': snap['reader_errors'],
               'watchdog_reopens': snap['watchdog_reopens'],
               'publish_errors': snap.get('publish_errors', 0),
+              'frames_held': snap.get('frames_held', 0),
+              'info_timeouts': snap.get('info_timeouts', 0),
+              'stamps_clamped': snap.get('stamps_clamped', 0),
+              'clock_resets': snap.get('clock_resets', 0),
               'last_frame_age_s': f'{silence:.2f}' if math.isfinite(silence) else 'none',
               'format': snap['format'], 'timestamp': snap['timestamp'], 'port': snap['port'],
               'baud': snap['baud']}
