@@ -215,7 +215,7 @@ class SerialLink:
 
     @property
     def clock_mapper(self):
-        """The device clock mapping (:class:`~accel_calib_ros.dataio.wire.clock.ClockMapper`)."""
+        """Return the device clock mapping (the ClockMapper of ``dataio/wire/clock.py``)."""
         return self.stamper.mapper
 
     # -- the reader ----------------------------------------------------------------------
