@@ -350,6 +350,21 @@ def make_directory(path, logger=None):
         return False
 
 
+def hardware_id(frame_id):
+    """
+    Return the ``/diagnostics`` ``hardware_id`` of an IMU: its ``frame_id``, one per sensor.
+
+    The convention of the three nodes: the driver, the calibration node and the correction
+    node report the same sensor under the same ``hardware_id``, the ``frame_id`` of its
+    messages (the driver's ``frame_id`` parameter, ``imu_link`` by default), so that a
+    diagnostics aggregator groups them; the serial port is a value (``port``), not the id.
+
+    :param frame_id: the IMU's frame_id.
+    :return: str.
+    """
+    return str(frame_id)
+
+
 class Throttled:
     """
     Log a kind of message at most once per ``period_s`` (monotonic time), per node.

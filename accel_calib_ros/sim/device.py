@@ -8,6 +8,14 @@ that starts at an arbitrary value and wraps. ``SIGUSR1`` unplugs the device for
 ``--unplug-s`` seconds and plugs it back in on a new pty (the link is re-pointed);
 ``SIGINT``/``SIGTERM`` stop it. A summary goes to stderr on exit.
 
+Link faults, as a real board shows them: ``--clock-ppm`` makes the microcontroller's µs
+clock run fast (an Uno's ceramic resonator is 0.1-0.3 % off), ``--stall AT:SECONDS`` stops
+the UART for a while (the sensor goes on sampling: ``seq`` and ``t_us`` keep counting,
+the samples are never sent), ``--unplug-at AT`` unplugs it on a schedule (as SIGUSR1). A
+``?`` or ``I`` from the reader is answered with the info frame, as the firmware does.
+``--report FILE`` writes what happened as JSON (samples made, frames written whole, and
+the samples never sent: unplugged, stalled, pty full).
+
 ``--gyro-errors`` gives the gyroscope a datasheet-sized scale and misalignment (the rates
 on the wire still integrate to the scripted turns) and ``--magnetometer`` an AK8963-like
 magnetometer in a 48 µT, 60° dip field: its samples (µT, accelerometer frame, NaN
@@ -70,6 +78,28 @@ def _non_negative(text):
     return value
 
 
+def _schedule(text):
+    try:
+        at, _, seconds = text.partition(':')
+        at, seconds = float(at), float(seconds or 'nan')
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected AT:SECONDS, got {text!r}')
+    if not (math.isfinite(at) and math.isfinite(seconds) and at >= 0 and seconds > 0):
+        raise argparse.ArgumentTypeError(f'expected AT:SECONDS (AT >= 0, SECONDS > 0), got '
+                                         f'{text!r}')
+    return at, seconds
+
+
+def _clock_ppm(text):
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'not a number: {text!r}')
+    if not math.isfinite(value) or abs(value) > 20000:
+        raise argparse.ArgumentTypeError(f'must be within ±20000 ppm, got {text}')
+    return value
+
+
 def add_arguments(parser):
     """
     Add the device options to an argparse parser.
@@ -121,6 +151,17 @@ def add_arguments(parser):
                              '(default %(default)s)')
     parser.add_argument('--unplug-s', type=_non_negative, default=2.0,
                         help='seconds unplugged after SIGUSR1 (default %(default)s)')
+    parser.add_argument('--unplug-at', type=_non_negative, action='append', default=[],
+                        metavar='AT', help='unplug AT seconds after the start, for --unplug-s '
+                        '(repeatable; as SIGUSR1)')
+    parser.add_argument('--stall', type=_schedule, action='append', default=[],
+                        metavar='AT:SECONDS', help='the UART stops AT s after the start for '
+                        'SECONDS: samples made, never sent (repeatable)')
+    parser.add_argument('--clock-ppm', type=_clock_ppm, default=0.0,
+                        help='the device µs clock runs this many ppm fast (negative: slow; '
+                             'default 0)')
+    parser.add_argument('--report', metavar='FILE.json',
+                        help='at exit, write what was made, sent and never sent as JSON')
     parser.add_argument('--duration', type=_positive, default=None,
                         help='stop after this many seconds (default: run until SIGINT)')
     parser.add_argument('--gyro-errors', action='store_true',
@@ -363,8 +404,14 @@ def run(args):
     old = {sig: signal.signal(sig, handler) for sig, handler in
            ((signal.SIGINT, on_stop), (signal.SIGTERM, on_stop), (signal.SIGUSR1, on_unplug))}
     wire = Wire(args, sensor.rng)
-    dropped = unplugs = 0
+    unplugs = 0
+    never = {'unplugged': 0, 'stalled': 0, 'buffer_full': 0}   # samples made, never sent
+    written = 0                                  # frames (or lines) written whole
+    stalls = [(at, at + seconds) for at, seconds in getattr(args, 'stall', [])]
+    unplug_at = sorted(getattr(args, 'unplug_at', []))
     pty = None
+    start_time = time.time()
+    sent = 0                                     # samples made (sent or not)
     try:
         pty = Pty(args.link)
         print(pty.path, flush=True)
@@ -372,12 +419,15 @@ def run(args):
         pty.write(wire.info(has_mag))
         info_due = time.monotonic() + INFO_PERIOD_S
         start = time.monotonic()
-        sent = 0                                     # samples generated (sent or dropped)
+        start_time = time.time()
         batch_s = min(0.01, 2.0 / args.rate)
         while not flags.stop:
             now = time.monotonic()
             if args.duration is not None and now - start >= args.duration:
                 break
+            if unplug_at and now - start >= unplug_at[0]:
+                unplug_at.pop(0)
+                flags.unplug = True
             if flags.unplug:
                 flags.unplug = False
                 unplugs += 1
@@ -394,25 +444,30 @@ def run(args):
                 missed = int((now - start) * args.rate) + 1 - sent
                 if missed > 0:                   # the sensor went on while unplugged
                     sensor.counts(missed, sent / args.rate)
-                    dropped += missed
+                    wire.skip(missed)
+                    never['unplugged'] += missed
                     sent += missed
                 pty = Pty(args.link)
                 print(pty.path, flush=True)
                 pty.write(wire.info(has_mag))
-            if pty is not None and now >= info_due:      # as the firmware: once a second
-                pty.write(wire.info(has_mag))
-                info_due = now + INFO_PERIOD_S
+            stalled = any(a <= now - start < b for a, b in stalls)
+            if pty is not None and not stalled:
+                asked = pty.requests()
+                if b'?' in asked or b'I' in asked or now >= info_due:
+                    pty.write(wire.info(has_mag))            # on request, and once a second
+                    info_due = now + INFO_PERIOD_S
             due = int((now - start) * args.rate) + 1
             if due > sent:
                 n = due - sent
                 counts = sensor.counts(n, sent / args.rate)
-                if pty is None:
-                    dropped += n
+                if pty is None or stalled:
+                    wire.skip(n)
+                    never['unplugged' if pty is None else 'stalled'] += n
                 else:
                     data = wire.encode(counts, sent, wire.mag_blocks(sensor.last_mag))
-                    lost = pty.write(data)
-                    if lost:
-                        dropped += int(math.ceil(lost * n / len(data)))
+                    whole = wire.whole_frames(len(data) - pty.write(data))
+                    written += whole
+                    never['buffer_full'] += n - whole
                 sent = due
             next_due = start + sent / args.rate
             time.sleep(max(batch_s, next_due - time.monotonic()))
@@ -422,10 +477,27 @@ def run(args):
         for sig, handler in old.items():
             signal.signal(sig, handler)
     kind = 'lines' if args.ascii else 'frames'
+    dropped = sum(never.values())
     print(f'simulate-device: {wire.frames} {kind} written, {wire.bytes_corrupted} bytes '
-          f'corrupted in {wire.frames_damaged} {kind}, about {dropped} {kind} dropped '
-          f'(unplugged or nobody reading), {unplugs} unplug(s)', file=sys.stderr, flush=True)
+          f'corrupted in {wire.frames_damaged} {kind}, {dropped} {kind} never sent '
+          f'(unplugged {never["unplugged"]}, stalled {never["stalled"]}, pty full '
+          f'{never["buffer_full"]}), {unplugs} unplug(s)', file=sys.stderr, flush=True)
+    if getattr(args, 'report', None):
+        _write_report(args.report, {
+            'samples': sent, 'frames_written': written, 'never_sent': never,
+            'unplugs': unplugs, 'stalls': len(stalls), 'rate_hz': args.rate,
+            'clock_ppm': wire.clock_ppm, 't0_us': wire.t0_us, 'frame_version': wire.version,
+            'start_time': start_time, 'bytes_corrupted': wire.bytes_corrupted})
     return 0
+
+
+def _write_report(path, report):
+    import json
+    from ..dataio.atomic import atomic_write_text
+    try:
+        atomic_write_text(path, json.dumps(report, indent=1) + '\n')
+    except Exception as err:            # noqa: B902 - the report must not hide the run
+        print(f'simulate-device: cannot write {path}: {err}', file=sys.stderr)
 
 
 def _write_truth(path, truth):

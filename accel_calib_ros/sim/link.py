@@ -32,7 +32,10 @@ class Wire:
         self.version = getattr(args, 'frame_version', 2)
         self.corrupt = args.corrupt
         self.rng = rng
-        self.period_us = 1e6 / args.rate
+        # The microcontroller's µs clock runs clock_ppm fast: it stamps the sensor's true
+        # sample period as this many of its µs.
+        self.clock_ppm = getattr(args, 'clock_ppm', 0.0)
+        self.period_us = 1e6 / args.rate * (1 + self.clock_ppm * 1e-6)
         self.t0_us = args.t0_us if args.t0_us is not None else int(rng.integers(0, 2 ** 32))
         self.seq = 0
         self.frames = 0
@@ -41,6 +44,16 @@ class Wire:
         self.ranges = (args.accel_range, args.gyro_range)
         self.rate_hz = min(max(int(round(args.rate)), 1), 0xFFFF)
         self.mag_converter = MagConverter()
+        self.last_sizes = []        # bytes of each frame of the last encode()
+
+    def whole_frames(self, written):
+        """Return how many frames of the last :meth:`encode` fit whole in ``written`` bytes."""
+        total = 0
+        for k, size in enumerate(self.last_sizes):
+            total += size
+            if total > written:
+                return k
+        return len(self.last_sizes)
 
     def info(self, has_mag):
         """
@@ -69,6 +82,10 @@ class Wire:
         return [None if not np.all(np.isfinite(row)) else to_counts(row * 1e-6)
                 for row in np.asarray(mag_ut, float)]
 
+    def skip(self, n):
+        """Advance ``seq`` over ``n`` samples made but never sent (UART stalled, unplugged)."""
+        self.seq = (self.seq + n) & (0xFFFF if self.version == 2 else 0xFF)
+
     def encode(self, counts, first_index, mag=None):
         """
         Encode samples number ``first_index``... as bytes (corrupted if asked).
@@ -78,6 +95,7 @@ class Wire:
             own axes (e.g. from ``MagConverter.to_counts``), sent in version-2 frames.
         """
         pieces, sizes = [], []
+        self.last_sizes = sizes
         for k, row in enumerate(counts.tolist()):
             t_us = (self.t0_us + int(round((first_index + k) * self.period_us))) & 0xFFFFFFFF
             if self.ascii:
@@ -132,6 +150,13 @@ class Pty:
                 with contextlib.suppress(OSError):
                     os.unlink(tmp)
                 raise
+
+    def requests(self):
+        """Return the bytes the reader wrote to the device (``?`` asks for the info frame)."""
+        try:
+            return os.read(self.master, 4096)
+        except (BlockingIOError, OSError):
+            return b''
 
     def write(self, data):
         """Write what the pty takes; return the number of bytes dropped (buffer full)."""

@@ -265,6 +265,7 @@ static uint8_t configure(uint8_t full)
 /* The AK8963: probe, factory sensitivity adjustment (fuse ROM), 16-bit continuous mode 2.
  * Sets info.mag and info.asa. A chip without one (MPU-6500/6050) does not answer. */
 static uint8_t mag_present;
+static uint8_t mag_expected;            /* 9250/9255, or an AK8963 seen: probe on recovery */
 static uint32_t mag_due_us;
 
 static void mag_init(void)
@@ -292,6 +293,7 @@ static void mag_init(void)
         return;
     info.mag = ACF_MAG_AK8963;
     mag_present = 1;
+    mag_expected = 1;
     mag_due_us = micros();
 }
 
@@ -328,6 +330,7 @@ static uint8_t detect(void)
                 return ACF_STATUS_UNKNOWN_CHIP;
             if (configure(1) != TWI_OK)
                 return ACF_STATUS_CONFIG_FAILED;
+            mag_expected = who == 0x71 || who == 0x73;  /* these contain an AK8963 */
             mag_init();
             return ACF_STATUS_STREAMING;
         }
@@ -356,8 +359,10 @@ static void recover(uint8_t cause)
     if (cause == ACF_CAUSE_DRDY && !recovery_failed)
         ++silent_recoveries;
     st = configure(silent_recoveries > FULL_RESET_AFTER);
-    if (st == TWI_OK && info.mag != ACF_MAG_ABSENT)
-        mag_init();                     /* the AK8963 may have lost its mode as well */
+    /* The AK8963 may have lost its mode as well; a probe that failed during an earlier
+     * recovery (the bus still disturbed) is tried again: absent is not for good. */
+    if (st == TWI_OK && (info.mag != ACF_MAG_ABSENT || mag_expected))
+        mag_init();
     if (st != TWI_OK) {
         count_i2c_error();
         if (st != CONFIG_MISMATCH)      /* the bus is the trouble, whatever noticed it */

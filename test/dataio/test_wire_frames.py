@@ -4,7 +4,7 @@ import math
 import random
 import struct
 
-from accel_calib_ros.dataio.wire import (accel_scale, AsciiLineParser, ClockMapper, Converter,
+from accel_calib_ros.dataio.wire import (accel_scale, AsciiLineParser, Converter,
                                          crc16, crc8, decode_frame, decode_info, encode,
                                          encode_ascii_line, encode_frame, encode_frame_v2,
                                          encode_info, encode_info_v2, FRAME_SIZE, FrameParser,
@@ -197,55 +197,6 @@ def test_unsupported_range(kwargs, words):
         Converter(**kwargs)
     for word in words:
         assert word in str(err.value)
-
-
-def simulate_link(seconds, rate, drift_ppm, rng, jitter_s=0.004, t0_us=4_294_000_000):
-    """Device sample times and host receive times with transport jitter and drift."""
-    n = int(seconds * rate)
-    dev_s = np.arange(n) / rate                        # true device clock
-    true_host = 1.7e9 + 12.345 + dev_s * (1.0 + drift_ppm * 1e-6)
-    delay = 0.001 + rng.exponential(jitter_s / 2, n) + rng.uniform(0, jitter_s, n)
-    # USB-serial delivers in bursts: a sample waits for the next sample of its burst.
-    burst_end = np.maximum.accumulate(true_host + delay)
-    host = burst_end
-    t_us = (t0_us + np.round(dev_s * 1e6).astype(np.int64)) & 0xFFFFFFFF
-    return t_us, host, true_host
-
-
-def test_clock_mapper_removes_jitter_and_tracks_drift():
-    rng = np.random.default_rng(6)
-    rate = 200.0
-    t_us, host, true_host = simulate_link(120.0, rate, 50.0, rng)
-    mapper = ClockMapper()
-    stamps = np.array([mapper.update(int(t), float(h)) for t, h in zip(t_us, host)])
-    assert mapper.resets == 0                         # the wrap is not a reset
-    jitter = np.std(np.diff(host))
-    assert jitter > 1e-3
-    spacing_error = np.diff(stamps) - np.diff(true_host)
-    assert np.std(spacing_error) < jitter / 50
-    assert np.max(np.abs(spacing_error[int(5 * rate):])) < 2e-5
-    error = stamps - true_host                        # constant part = minimum delay
-    settled = error[int(40 * rate):]
-    assert np.ptp(settled) < 5e-4                     # 50 ppm would be 4 ms over 80 s
-    assert 0.0008 < np.median(settled) < 0.0015
-    assert mapper.drift_ppm == pytest.approx(50.0, abs=15.0)
-
-
-def test_clock_mapper_resets_on_device_reset():
-    rng = np.random.default_rng(7)
-    t_us, host, true_host = simulate_link(10.0, 100.0, 0.0, rng)
-    mapper = ClockMapper()
-    for t, h in zip(t_us, host):
-        mapper.update(int(t), float(h))
-    # The microcontroller reboots: its clock restarts at 0 one second later.
-    later = host[-1] + 1.0
-    stamp = mapper.update(0, later)
-    assert mapper.resets == 1
-    assert stamp == pytest.approx(later)
-    assert mapper.update(10_000, later + 0.0105) == pytest.approx(later + 0.01, abs=1e-3)
-    # A forward jump far beyond the host time elapsed is a reset too.
-    mapper.update(10_000 + 3_000_000_000 // 2, later + 0.02)
-    assert mapper.resets == 2
 
 
 def sensor_frames(n, seq0=0, t0=1000, period=1000, temp=1335):

@@ -131,3 +131,21 @@ def test_v2_info_frames_byte_identical(encoder):
     assert parser.feed(got[0] + frame + got[1]) == []           # one frame: unconfirmed
     assert parser.take_infos() == infos[:2]
     assert decode_frame(frame) == RawFrame(1, 1000, (0, 0, 16384, 1000, 0, 0, 0), None, 2)
+
+
+def test_the_chip_list_of_the_spec_the_firmware_and_the_driver_agree():
+    """Regression: interface.md §7 listed ICM-20608-class parts the firmware refuses."""
+    import os
+    import re
+    from accel_calib_ros.dataio.wire import CHIPS
+    from firmware_tools import FIRMWARE, ROOT
+    with open(os.path.join(FIRMWARE, 'src', 'main.c')) as f:
+        source = f.read()
+    known = re.search(r'known_chip\(uint8_t who\)\s*{\s*return ([^;]*);', source).group(1)
+    firmware = {int(h, 16) for h in re.findall(r'who == (0x[0-9a-fA-F]+)', known)}
+    with open(os.path.join(ROOT, 'docs', 'interface.md')) as f:
+        section = f.read().split('## 7. Firmware')[1].split('## 8.')[0]
+    streamed = section.split('the chips the firmware streams')[0].split('WHO_AM_I')[-1]
+    spec = {int(h, 16) for h in re.findall(r'0x[0-9a-fA-F]{2}', streamed)}
+    assert firmware == spec == set(CHIPS) == {0x71, 0x73, 0x70, 0x68}
+    assert 'ICM' not in section.split('the chips the firmware streams')[0]

@@ -210,6 +210,30 @@ def test_magnetometer_block_from_the_ak8963(board, tmp_path):
         assert abs(f.t_us - (t_sim + offset)) < 1000 + 5           # sample read with it
 
 
+def test_a_failed_ak8963_probe_is_retried_on_a_later_recovery(board, tmp_path):
+    """
+    Regression: one failed AK8963 probe during a recovery marked it absent for good.
+
+    The AK8963 does not answer from 0.6 to 1.0 s; a recovery at 0.7 s finds it silent
+    (absent); the next recovery, at 1.3 s, probes it again and its samples come back.
+    """
+    report, data, _ = run_board(board, board['elf'], tmp_path, '--seconds', 1.9,
+                                '--fault', 'ak-nack:600:400', '--fault', 'int-silent:700:30',
+                                '--fault', 'int-silent:1300:30')
+    parser = FrameParser()
+    frames = parser.feed(data) + parser.flush()
+    infos = parser.take_infos()
+    assert parser.crc_errors == 0 and parser.rejected == 0
+    at = [f.t_us / 1e3 for f in frames]                     # ms since the board started
+    with_mag = [t for t, f in zip(at, frames) if f.mag is not None]
+    assert any(t < 600 for t in with_mag)
+    assert not any(760 < t < 1300 for t in with_mag)        # absent after the 1st recovery
+    assert sum(t > 1360 for t in with_mag) >= 40            # back after the 2nd: 100 Hz
+    statuses = [i.mag_status for i in infos]
+    assert MAG_ABSENT in statuses and statuses[-1] == MAG_AK8963
+    assert infos[-1].recoveries >= 2
+
+
 @pytest.mark.parametrize('args', [['--who', '0x70'], ['--mag', 'none']],
                          ids=['mpu6500', 'mpu9250-without-ak8963'])
 def test_no_magnetometer_no_block(board, tmp_path, args):

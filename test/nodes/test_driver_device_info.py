@@ -165,11 +165,11 @@ def test_reader_survives_an_exception_and_reports_it(rigs):
     real_feed = node.parser.feed
     calls = []
 
-    def failing_feed(data):
+    def failing_feed(data, *args):
         calls.append(len(data))
         if len(calls) == 1:
             raise AttributeError("'tuple' object has no attribute 'seq'")
-        return real_feed(data)
+        return real_feed(data, *args)
     node.parser.feed = failing_feed
     time.sleep(0.3)
     rig.write(frames(10))
@@ -276,3 +276,43 @@ def test_no_magnetometer_on_an_mpu6500(rigs):
     values = rig.status()[1]
     assert values['magnetometer'] == 'absent (no AK8963 answers) (MPU-6500): no imu/mag'
     assert rig.mag == [] and values['mag_frames'] == '0'
+
+
+def v2_frames(start, n, az, period_us=1000):
+    return b''.join(encode_frame_v2(k, 1000 + period_us * k, (0, 0, az, 1335, 0, 0, 0))
+                    for k in range(start, start + n))
+
+
+def test_frames_before_the_info_frame_wait_for_its_ranges(rigs):
+    """Regression: up to ~1 s of data was converted with the parameter ranges (4x off)."""
+    rig = rigs()
+    time.sleep(0.3)
+    rig.write(v2_frames(0, 200, 4096))                 # 1 g at ±8 g
+    rig.spin_until(lambda: False, 0.4)
+    assert rig.imu == []                               # held: the ranges are not known yet
+    rig.write(encode_info_v2(InfoFrame(0, 0x71, 8, 250, 1000, 1, 1_000_000, (2, 0), 2, 0,
+                                       info_version=2)))
+    rig.write(v2_frames(200, 200, 4096))
+    assert rig.spin_until(lambda: len(rig.imu) >= 399, 10)
+    assert {round(m.linear_acceleration.z, 3) for m in rig.imu} == {9.807}
+    assert rig.node.link.info_timeouts == 0
+
+
+def test_the_info_frame_is_forgotten_on_reopen(rigs):
+    """Regression: device_info survived a reopen (another firmware behind the same port)."""
+    rig = rigs()
+    node = rig.node
+    time.sleep(0.3)
+    rig.write(encode_info_v2(InfoFrame(0, 0x71, 2, 250, 1000, 1, 1_000_000, (2, 0), 2, 0,
+                                       info_version=2)))
+    rig.write(v2_frames(0, 300, 16384))
+    assert rig.spin_until(lambda: len(rig.imu) >= 299, 10)
+    opens = node.link.reconnects + node.link.watchdog_reopens
+    assert rig.spin_until(lambda: node.link.watchdog_reopens > opens, 10)     # silent
+    assert node.device_info is None and node.accel_range_g == 2
+    rig.write(encode_info_v2(InfoFrame(0, 0x71, 4, 250, 1000, 1, 1_000_000, (2, 0), 2, 0,
+                                       info_version=2)))              # the new firmware
+    rig.write(v2_frames(0, 300, 8192))
+    assert rig.spin_until(lambda: len(rig.imu) >= 598, 10)
+    assert {round(m.linear_acceleration.z, 3) for m in rig.imu[300:]} == {9.807}
+    assert node.accel_range_g == 4

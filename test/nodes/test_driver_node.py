@@ -98,7 +98,8 @@ def test_stream_reaches_the_graph(procs, collector, tmp_path):
     assert sum(s in imu_stamps for s in temp_stamps) >= 0.9 * len(temp_stamps)
     assert collector.spin_until(lambda: serial_status(collector) is not None, 5)
     status = serial_status(collector)
-    assert status['connected'] == 'True' and status['hardware_id'].endswith('imu0')
+    assert status['connected'] == 'True' and status['port'].endswith('imu0')
+    assert status['hardware_id'] == 'imu_link'                # hardware_id(frame_id)
     assert driver.poll() is None
     code, log = stop_node(driver)
     assert code == 0, log

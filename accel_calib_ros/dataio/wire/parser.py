@@ -8,6 +8,7 @@ never raises: bad bytes are skipped and counted, and an unexpected error inside 
 
 import collections
 import heapq
+import math
 
 from .conversion import TEMP_FORMULAS
 from .crc import crc16, CRC8_TABLE
@@ -27,6 +28,11 @@ QUALITY_WINDOW_FRAMES = 200
 QUALITY_WINDOW_BYTES = 22 * QUALITY_WINDOW_FRAMES
 MAX_GAP_S = 2.0
 """Longest gap (device seconds) bridged by the sequence check; longer needs re-locking."""
+PERIOD_REL = 1e-4
+"""Relative uncertainty of the measured sample period when a gap is counted in periods."""
+LONG_GAP_TOL_S = 10.0
+"""A gap over :data:`MAX_GAP_S` is counted only when its device time agrees with the host
+time between the two frames' arrival within this (plus 2 %): a device restart does not."""
 TIGHT_US = 20.0
 TIGHT_REL = 1e-4
 """Timing tolerance of an interrupt-stamped firmware: 20 µs + 100 ppm of the interval (the
@@ -102,8 +108,11 @@ class FrameParser:
     ``crc_errors`` (candidates whose check value or flags failed), ``rejected`` (valid
     candidates that were implausible or never confirmed), ``bytes_skipped`` (bytes not
     part of a published, held or info frame), ``lost_frames`` (samples missing between
-    published frames, from ``seq`` and ``t_us``), ``info_frames``, ``bytes_in``,
-    ``timing_jitter``, ``internal_errors`` (bugs caught; 0 unless something is wrong).
+    published frames, from ``seq`` and ``t_us`` at the measured rate: across re-locks,
+    resets and, with host times, gaps of any length), ``gaps_uncounted`` (gaps whose loss
+    cannot be told: a device restart, a change of frame version or rate), ``info_frames``,
+    ``bytes_in``, ``timing_jitter``, ``internal_errors`` (bugs caught; 0 unless something
+    is wrong).
 
     :param temp_range: (low, high) plausible temperature counts (default: any chip).
     :param spike_counts: spike threshold in counts, e.g. :data:`SPIKE_COUNTS` (None: no
@@ -128,6 +137,7 @@ class FrameParser:
         self.crc_errors = 0
         self.rejected = 0
         self.lost_frames = 0
+        self.gaps_uncounted = 0
         self.info_frames = 0
         self.bytes_in = 0
         self.timing_jitter = 0
@@ -136,6 +146,9 @@ class FrameParser:
         self.version = None
         self.period_us = None
         self._last_period = None
+        self._host = None           # host time of the bytes being parsed (feed's host_s)
+        self._last_out = None       # the last published frame: the baseline of the loss
+        self._last_out_host = None  # and the host time it came in
         self._consumed = 0          # bytes deleted from the buffer: absolute position of buf[0]
         self._covered = 0           # bytes that belonged to published or info frames
         self._covers = collections.deque(maxlen=16)
@@ -146,7 +159,12 @@ class FrameParser:
     # -- state ---------------------------------------------------------------------------
 
     def reset(self):
-        """Forget the partial frame and the sequence (after a reconnect); keep counters."""
+        """
+        Forget the partial frame and the sequence (its state is suspect); keep counters.
+
+        The last published frame stays the baseline of the loss count: the samples missing
+        between it and the next one published are counted, across the reset too.
+        """
         self._consumed += len(self._buf)
         self._buf.clear()
         self._ref = None            # last accepted frame
@@ -154,7 +172,6 @@ class FrameParser:
         self._older = []            # the two references before it, with their positions
         self._pending = []          # (frame, start, end): valid candidates not yet confirmed
         self._held = None           # (frame, adjacent, start, end)
-        self._last_out = None
         self._last_end = None
         self._restart_timing()
 
@@ -191,7 +208,8 @@ class FrameParser:
         """Return the counters as a dict."""
         return {'frames': self.frames, 'crc_errors': self.crc_errors,
                 'rejected': self.rejected, 'bytes_skipped': self.bytes_skipped,
-                'lost_frames': self.lost_frames, 'info_frames': self.info_frames,
+                'lost_frames': self.lost_frames, 'gaps_uncounted': self.gaps_uncounted,
+                'info_frames': self.info_frames,
                 'bytes_in': self.bytes_in, 'frames_v1': self.frames_v1,
                 'frames_v2': self.frames_v2, 'mag_frames': self.mag_frames,
                 'timing_jitter': self.timing_jitter, 'internal_errors': self.internal_errors}
@@ -242,26 +260,42 @@ class FrameParser:
         return n
 
     def _loss(self, prev, frame):
-        """Return the samples missing between two published frames (0: gap unknown)."""
-        n = self._gap(prev, frame, self.period_us)
+        """
+        Return the samples missing between two published frames.
+
+        The gap is counted in sample periods of the measured rate (the current one, or the
+        one before a re-lock): the number n of periods in the ``t_us`` gap, within the
+        period's uncertainty, that agrees with the ``seq`` gap modulo its width (256 for
+        version 1, 65536 for version 2) counts n - 1 lost samples when it is the only such
+        n. A gap over :data:`MAX_GAP_S` also needs the host times of both frames to agree
+        with it (so a device restart is not counted). Anything else (no rate measured yet,
+        another frame version, several or no such n) counts nothing and is counted in
+        ``gaps_uncounted``.
+        """
+        period = self.period_us or self._last_period
+        if period is None or prev.version != frame.version:
+            self.gaps_uncounted += 1
+            return 0
+        n = self._gap(prev, frame, period)
         if n:
             return n - 1
-        # Re-locked in between (e.g. the firmware re-initialised the sensor and advanced
-        # seq by the periods it missed): count the gap while seq and t_us agree to a period.
-        period = self.period_us or self._last_period
-        if not period or prev.version != frame.version:
-            return 0
         dt = (frame.t_us - prev.t_us) & 0xFFFFFFFF
         if dt > MAX_GAP_S * 1e6:
+            host, host0 = self._host, self._last_out_host
+            if host is None or host0 is None or \
+                    abs(dt * 1e-6 - (host - host0)) > 0.02 * (host - host0) + LONG_GAP_TOL_S:
+                self.gaps_uncounted += 1
+                return 0
+        width = 0x100 if frame.version == 1 else 0x10000
+        x = dt / period
+        spread = (0.45 if frame.version == 1 else 1.0) + x * PERIOD_REL
+        dseq = (frame.seq - prev.seq) % width
+        lo = max(math.ceil(x - spread), 1)
+        first = lo + (dseq - lo) % width               # the smallest n >= lo, n = dseq mod
+        if first > x + spread or first + width <= x + spread:
+            self.gaps_uncounted += 1                   # none, or more than one
             return 0
-        if frame.version == 1:
-            n = int(dt / period + 0.5)
-            ok = n >= 1 and (n & 0xFF) == (frame.seq - prev.seq) & 0xFF and \
-                abs(dt - n * period) <= 0.45 * period
-        else:
-            n = (frame.seq - prev.seq) & 0xFFFF
-            ok = n >= 1 and abs(dt - n * period) <= period
-        return n - 1 if ok else 0
+        return first - 1
 
     def _advance(self, ref, frame, n):
         """Return the unwrapped position of an accepted frame; update period and jitter."""
@@ -327,6 +361,7 @@ class FrameParser:
         if prev is not None:
             self.lost_frames += self._loss(prev, frame)
         self._last_out = frame
+        self._last_out_host = self._host
         self._cover(start, end)
         out.append(frame)
 
@@ -393,14 +428,17 @@ class FrameParser:
 
     # -- scanning ------------------------------------------------------------------------
 
-    def feed(self, data):
+    def feed(self, data, host_s=None):
         """
         Parse more bytes; never raises.
 
         :param data: bytes-like object, any length (may be empty).
+        :param host_s: host time the bytes came in, s (None: unknown); with it a gap over
+            :data:`MAX_GAP_S` can be counted (its device time checked against host time).
         :return: list of RawFrame, in stream order (a held frame comes out later).
         """
         try:
+            self._host = host_s
             return self._feed(data)
         except Exception as err:        # noqa: B902 - never raise on data
             self._internal_error(err)

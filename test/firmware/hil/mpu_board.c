@@ -41,7 +41,8 @@
  *   nack        the sensor does not acknowledge any I2C transfer for the duration;
  *   sda-stuck   the sensor holds SDA low (PC4 reads 0, transfers fail) for the duration
  *               and lets it go only at an SCL pulse after that (a slave stuck in a byte:
- *               only a bus recovery that clocks SCL by hand frees it).
+ *               only a bus recovery that clocks SCL by hand frees it);
+ *   ak-nack     the AK8963 alone does not acknowledge for the duration (the MPU does).
  * The I2C pins have the board's external pull-ups (PC4 and PC5 read 1 when released); SCL
  * pulses clocked by hand (PORTC/DDRC, TWI off) are counted.
  *
@@ -112,8 +113,8 @@ static avr_cycle_count_t sample_cycles;
 static uint32_t last_rate_hz;
 
 /* ---- faults -------------------------------------------------------------------- */
-enum { F_INT_SILENT, F_BROWNOUT, F_NACK, F_SDA_STUCK };
-static const char *fault_names[] = {"int-silent", "brownout", "nack", "sda-stuck"};
+enum { F_INT_SILENT, F_BROWNOUT, F_NACK, F_SDA_STUCK, F_AK_NACK, N_FAULT_KINDS };
+static const char *fault_names[] = {"int-silent", "brownout", "nack", "sda-stuck", "ak-nack"};
 typedef struct {
     int kind;
     uint64_t start_us, end_us;          /* simulated µs */
@@ -352,7 +353,7 @@ static void twi_hook(avr_irq_t *irq, uint32_t value, void *param)
         addr_phase_write = !(m.u.twi.addr & 1);
         if (fault_active(F_NACK) || fault_active(F_SDA_STUCK))
             return;                                 /* nobody acknowledges */
-        if ((m.u.twi.addr >> 1) == AK_ADDR && ak_visible()) {
+        if ((m.u.twi.addr >> 1) == AK_ADDR && ak_visible() && !fault_active(F_AK_NACK)) {
             selected = selected_ak = m.u.twi.addr;
             ak_index_pending = !(m.u.twi.addr & 1);
             avr_raise_irq(twi_in, avr_twi_irq_msg(TWI_COND_ACK, selected, 1));
@@ -482,9 +483,9 @@ static int parse_fault(const char *text)
     got = sscanf(text, "%31[a-z-]:%lf:%lf", name, &start_ms, &dur_ms);
     if (got < 2 || start_ms < 0 || dur_ms < 0)
         return 0;
-    for (k = 0; k < 4 && strcmp(name, fault_names[k]); ++k)
+    for (k = 0; k < N_FAULT_KINDS && strcmp(name, fault_names[k]); ++k)
         ;
-    if (k == 4 || (k != F_BROWNOUT && got < 3))
+    if (k == N_FAULT_KINDS || (k != F_BROWNOUT && got < 3))
         return 0;
     f = &faults[n_faults++];
     f->kind = k;
