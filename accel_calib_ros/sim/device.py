@@ -33,7 +33,7 @@ import time
 
 import numpy as np
 
-from .link import Pty, Wire
+from .device_port import Pty, Wire
 from ..core.constants import G0
 from ..dataio.wire import ACCEL_LSB_PER_G, Converter, GYRO_LSB_PER_DPS
 

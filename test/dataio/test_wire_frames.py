@@ -526,7 +526,7 @@ def test_virtual_device_wire_versions_and_magnetometer_counts(version):
     """The virtual sensor's Wire: frame version 2 by default, 1 on request, mag counts in v2."""
     import argparse
     from accel_calib_ros.sim.device import add_arguments
-    from accel_calib_ros.sim.link import Wire
+    from accel_calib_ros.sim.device_port import Wire
     args = add_arguments(argparse.ArgumentParser()).parse_args(
         ['--rate', '1000', '--t0-us', '4294967000'] + (['--frame-version', '1']
                                                        if version == 1 else []))
