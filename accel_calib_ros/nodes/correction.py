@@ -70,7 +70,8 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data,
 from sensor_msgs.msg import Imu, MagneticField, Temperature
 from std_srvs.srv import Trigger
 
-from .common import calibration_path, declare_parameters, Param, ParameterProblem, run, Throttled
+from .common import (calibration_path, declare_parameters, hardware_id, Param, ParameterProblem,
+                     run, Throttled)
 from .correction_monitor import NodeMonitor, PARAMS as MONITOR_PARAMS
 from ..core.constants import TESLA_PER_UT
 from ..core.correction import (Corrector, UNCALIBRATED_COVARIANCE,  # noqa: F401 - re-exported
@@ -260,10 +261,10 @@ class CorrectionNode(Node):
                 mon.flush(msg.header.stamp)
             bx, by, bz = mon.bias
             w.x, w.y, w.z = gx - bx, gy - by, gz - bz
+        h = msg.header
+        if h.frame_id != self._frames[0]:       # the sensor's frame: also its hardware_id
+            self._frames = (h.frame_id, self.level_frame(h.frame_id))
         if c.trimmed:       # levelled axes: the frame says so
-            h = msg.header
-            if h.frame_id != self._frames[0]:
-                self._frames = (h.frame_id, self.level_frame(h.frame_id))
             h.frame_id = self._frames[1]
         self.pub.publish(msg)
 
@@ -444,7 +445,7 @@ class CorrectionNode(Node):
         self._rate_mark = (now, self._samples)
         status = DiagnosticStatus(level=DiagnosticStatus.OK,
                                   name=f'{self.get_name()}: calibration',
-                                  hardware_id=(cal.sensor_id or '') if cal else '')
+                                  hardware_id=hardware_id(self._frames[0]))
         if cal is None:
             status.level = DiagnosticStatus.WARN
             status.message = ('uncalibrated: passing the raw acceleration through with '
@@ -479,7 +480,10 @@ class CorrectionNode(Node):
                        'mag_samples': self._mag_samples,
                        'mag_corrected_published': self._mag_published})
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
-        array = DiagnosticArray(status=[status] + self.monitor.statuses())
+        monitor = self.monitor.statuses()
+        for part in monitor:
+            part.hardware_id = status.hardware_id
+        array = DiagnosticArray(status=[status] + monitor)
         array.header.stamp = self.get_clock().now().to_msg()
         self.diag_pub.publish(array)
 

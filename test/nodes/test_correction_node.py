@@ -344,6 +344,8 @@ def test_non_finite_input_is_dropped_and_counted(tmp_path, rig_factory):
     assert len(rig.received) == 1 and out.header.stamp.sec == good.header.stamp.sec
     assert rig.node._dropped == 2
     assert diagnostics_of(rig)[2]['dropped_non_finite'] == '2'
+    # One hardware_id per sensor across the nodes: the IMU's frame_id (nodes/common).
+    assert {s.hardware_id for s in rig.last_diagnostics()} == {good.header.frame_id}
 
 
 def test_gyro_bias_level_trim_and_temperature_warning(tmp_path, rig_factory):
