@@ -2,7 +2,7 @@
 Benchmark of the field monitor (issue 24): rates and ratios for each claim, many seeds.
 
 Every row runs the monitor the correction node runs (``core.monitor.FieldMonitor``) on
-the corrected stream of a simulated robot (``sim.field``): an MPU-9250-like sensor
+the corrected stream of a simulated robot (``sim.field_stream``): an MPU-9250-like sensor
 (accelerometer with a temperature coefficient, gyro 0.01 °/s/√Hz with ±3 %/±2 % scale
 and misalignment, AK8963) and an ``ml --thermal`` calibration fitted to it over
 15-35 °C, 200 Hz. Rows:
@@ -19,7 +19,7 @@ and misalignment, AK8963) and an ``ml --thermal`` calibration fitted to it over
    direction (which may fall across every orientation seen);
 4. 24 h of still/move cycles (still 5-120 s, drive 5-120 s, 4 resting poses tilted up to
    10°, temperature 25 ± 8 °C daily, inside the range), no change: the health check's
-   false alarms, at block level (``sim.field.blocks``: the same 0.1 s blocks the node
+   false alarms, at block level (``sim.field_stream.blocks``: the same 0.1 s blocks the node
    builds, drawn from their distribution).
 
 Rows 1-3 are simulated sample by sample. ``--seeds`` (default 20) per row; row 4 takes
@@ -34,7 +34,7 @@ import sys
 import time
 
 from accel_calib_ros.core.monitor import corrected_arrays, FieldMonitor
-from accel_calib_ros.sim import field as F
+from accel_calib_ros.sim import field_stream as F
 import numpy as np
 
 DEG = math.pi / 180.0

@@ -7,7 +7,7 @@ from accel_calib_ros.cli.common import MAX_MESSAGE
 from accel_calib_ros.core.samples import Samples
 from accel_calib_ros.dataio.calibration_file import save_calibration
 from accel_calib_ros.dataio.csv_write import write_samples_csv
-from accel_calib_ros.sim import field as F
+from accel_calib_ros.sim import field_stream as F
 import numpy as np
 import pytest
 

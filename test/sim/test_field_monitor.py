@@ -1,5 +1,5 @@
 """
-The field monitor's science (core.monitor) on the field simulator (sim.field), ROS-free.
+The field monitor's science (core.monitor) on the field simulator (sim.field_stream), ROS-free.
 
 Short simulated days, a few seeds: the claims of issue 24 as properties; the rates over
 many seeds are in bench/bench_monitor.py.
@@ -11,7 +11,7 @@ import math
 from accel_calib_ros.core.monitor import (Block, corrected_arrays, FieldMonitor,
                                           MonitorSettings, Run)
 from accel_calib_ros.core.monitor.stats import chi2_quantile, chi2_survival
-from accel_calib_ros.sim import field as F
+from accel_calib_ros.sim import field_stream as F
 import numpy as np
 import pytest
 from scipy import stats

@@ -9,7 +9,7 @@ magnetic field, and the mean temperature. A :class:`Run` adds blocks up into the
 of a still period, including the sums of a straight-line fit of the block means over
 time (the slope says whether the sensor tilts or turns while it looks still).
 
-A simulator may also draw blocks directly from their distribution (``sim/field.py``):
+A simulator may also draw blocks directly from their distribution (``sim/field_stream.py``):
 the 24 h false-alarm bench runs at block level.
 """
 

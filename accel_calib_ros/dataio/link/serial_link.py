@@ -427,7 +427,7 @@ class SerialLink:
 
     def snapshot(self):
         """
-        Return the link's state at this moment as a dict (for :func:`~.health.assess`).
+        Return the link's state at this moment as a dict (for :func:`~.link_health.assess`).
 
         Taken under the reader's lock: every value is of the same moment. Keys: ``time``
         (monotonic), ``counters`` (the parser's, with ``crc_errors``, ``lost_frames``,
