@@ -16,7 +16,7 @@ directions. :class:`ImuCollector` keeps
   spacing, which is what the ellipsoid fit needs.
 
 :meth:`ImuCollector.solve` runs ``core.outcomes.solve_gyro`` and ``solve_magnetometer`` on
-what was kept, with the node's windows (dicts with ``t_start``/``t_stop``). numpy only
+what was kept, with the session's windows (their ``t_start``/``t_stop``). numpy only
 here (the fits import scipy when they run).
 """
 
@@ -193,13 +193,14 @@ class ImuCollector:
     @staticmethod
     def windows_in(t, windows):
         """
-        Map window dicts (``t_start``, ``t_stop`` in s) to sample ranges of times ``t``.
+        Map windows to sample ranges of times ``t``.
 
+        :param windows: an object with ``t_start`` and ``t_stop`` arrays (s), or a sequence of
+            windows with those times (objects or dicts).
         :returns: an object with ``start`` and ``stop`` (int arrays) for the windows that
             lie inside ``t`` (with at least one sample).
         """
-        t_start = np.array([w['t_start'] for w in windows], float)
-        t_stop = np.array([w['t_stop'] for w in windows], float)
+        t_start, t_stop = _window_times(windows)
         start = np.searchsorted(t, t_start, side='left')
         stop = np.searchsorted(t, t_stop, side='right')
         keep = (stop > start) & (t_start >= t[0]) & (t_stop <= t[-1])
@@ -224,7 +225,7 @@ class ImuCollector:
         """
         Fit the gyroscope and the magnetometer with the accelerometer calibration ``accel``.
 
-        :param windows: the node's window dicts (``t_start``, ``t_stop``).
+        :param windows: the session's windows (see :meth:`windows_in`).
         :returns: (gyro SensorOutcome, magnetometer SensorOutcome).
         """
         from .outcomes import absent, SensorOutcome, solve_gyro, solve_magnetometer
@@ -251,3 +252,14 @@ class ImuCollector:
             mag = solve_magnetometer(mags, self.windows_in(mags.t, windows), accel,
                                      max_mag_error, field_uT)
         return gyro, mag
+
+
+def _window_times(windows):
+    """Return (t_start, t_stop) arrays, s, of windows given as arrays or one by one."""
+    if isinstance(getattr(windows, 't_start', None), np.ndarray):
+        return (np.asarray(windows.t_start, float).reshape(-1),
+                np.asarray(windows.t_stop, float).reshape(-1))
+    rows = [(w['t_start'], w['t_stop']) if isinstance(w, dict) else (w.t_start, w.t_stop)
+            for w in windows]
+    times = np.array(rows, float).reshape(-1, 2)
+    return times[:, 0], times[:, 1]

@@ -44,35 +44,23 @@ from std_srvs.srv import Trigger
 
 from .common import (calibration_path, declare_parameters, expand_path, make_directory, Param,
                      ParameterProblem, run, unsafe_output)
-from ..core.accelerometer.fit import calibrate
-from ..core.accelerometer.thermal import MIN_WINDOWS_PER_BAND
-from ..core.acceptance import review
 from ..core.advice import advise, coverage
 from ..core.collector import DEFAULT_MAX_MAG_SAMPLES, DEFAULT_MAX_SAMPLES, ImuCollector
 from ..core.constants import G0
 from ..core.errors import CalibrationError, InputError
 from ..core.finite import finite_or_none
 from ..core.outcomes import DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR
-from ..core.windows import DEFAULTS, OnlineStaticDetector, StaticWindows
-from ..dataio.calibration_file import save_calibration
+from ..core.windows import DEFAULTS, OnlineStaticDetector
+from ..session.accept import CollectedImu, fit_and_accept, NODE, Outcome, Settings, THERMAL_MODES
+from ..session.windows import Window, WindowSet
 
 METHODS = ('ml', 'gn', 'ml-bc')
-THERMAL_MODES = ('auto', 'on', 'off')
-MIN_WINDOW_NOISE = 0.005
-"""Floor of the expected window-mean error, m/s² (about 0.5 mg).
-
-White noise averages down to a few 1e-3 m/s² in a 2 s window, but a consumer MEMS
-accelerometer's bias does not repeat between poses better than about 0.5 mg (bias
-instability, hand and table vibration), and a 6-parameter ``gn`` fit leaves a
-residual of that order on a sensor with small cross-axis terms. Below this floor a
-residual is never a reason to refuse."""
 MIN_RATE_HZ = 1.0
 """Lowest nonzero ``rate_hz`` accepted, Hz (an IMU below 1 Hz is a unit mistake)."""
 QUEUE_DEPTH = 200
 """Input queue depth (samples): 1 s at 200 Hz, 0.2 s at 1 kHz."""
 CHUNK = 100
 """Samples buffered before they go to the detector (also flushed every 0.1 s)."""
-THERMAL_EFFECTS = ('temperature_bias', 'temperature_scale')
 LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
                      reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -81,15 +69,6 @@ LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
 def stamp_seconds(stamp):
     """builtin_interfaces/Time as float seconds."""
     return stamp.sec + stamp.nanosec * 1e-9
-
-
-def _accepts(function, name):
-    """Whether ``function`` takes a keyword argument ``name`` (core APIs grow)."""
-    import inspect
-    try:
-        return name in inspect.signature(function).parameters
-    except (TypeError, ValueError):
-        return False
 
 
 def safe_json(obj):
@@ -339,27 +318,27 @@ class CalibrationNode(Node):
         for window in windows:
             self._add(window, publish=False)
         if windows:
-            self.publish_status(windows[-1], advice=True)
+            self.publish_status(self.windows[-1], advice=True)
 
     def _add(self, window, publish=True):
         if window is None:
             return
+        window = Window.from_detector(window)
         self.windows.append(window)
         if publish:
             self.publish_status(window, advice=True)
 
     # -- progress --------------------------------------------------------------------------
+    def window_set(self, extra=()):
+        """Return the windows kept (and ``extra`` ones) as a WindowSet."""
+        return WindowSet.from_windows(list(self.windows) + [
+            w if isinstance(w, Window) else Window.from_detector(w) for w in extra])
+
     def _arrays(self, extra=()):
-        w = list(self.windows) + list(extra)
-        means = np.array([x['mean'] for x in w], float).reshape(-1, 3)
-        counts = np.array([x['count'] for x in w], float)
-        scatter = np.array([x['scatter'] for x in w], float).reshape(-1, 3)
-        temps = np.array([x['temp'] for x in w], float)
-        cap = self.params['max_weight_s'] * (self.detector.rate_hz or 100.0)
-        weights = np.minimum(counts, cap)
-        dof = np.maximum(counts - 1, 0)
-        noise = np.sqrt(np.sum(dof[:, None] * scatter ** 2, axis=0) / max(dof.sum(), 1.0))
-        return means, weights, temps, noise
+        obs = self.window_set(extra).observations(self.params['max_weight_s'],
+                                                  self.detector.rate_hz)
+        noise = obs.noise if obs.noise is not None else np.zeros(3)
+        return obs.readings, obs.weights, obs.temps, noise
 
     def _method(self):
         return 'gn' if self.params['method'] == 'gn' else 'ml'
@@ -423,14 +402,13 @@ class CalibrationNode(Node):
         d = self.progress(obj)
         if window is not None:
             d['last_window'] = {
-                'mean': [finite_or_none(v, 5) for v in window['mean']],
-                'count': int(window['count']),
-                'duration_s': finite_or_none(window['t_stop'] - window['t_start'], 3)}
+                'mean': [finite_or_none(v, 5) for v in window.mean],
+                'count': int(window.count), 'duration_s': finite_or_none(window.duration_s, 3)}
             pose = d['next_pose']
             acc = d['predicted_accuracy']
             self.get_logger().info(
-                f'window {d["windows"]}: mean ({", ".join(f"{v:.3f}" for v in window["mean"])})'
-                f' m/s2, {window["count"]} samples; predicted accuracy '
+                f'window {d["windows"]}: mean ({", ".join(f"{v:.3f}" for v in window.mean)})'
+                f' m/s2, {window.count} samples; predicted accuracy '
                 + (f'{acc:.4f} m/s2' if acc is not None else 'not yet')
                 + ('; enough' if d['enough'] else
                    f'; next: {pose["name"]}' if pose else ''))
@@ -503,176 +481,69 @@ class CalibrationNode(Node):
         self.process_pending()
         for window in self.detector.release():
             self._add(window, publish=False)
-        held = self.detector.peek()
-        accuracy = None
-        try:
-            cal, msg = self.solve(held)
-            accuracy = cal.predicted_accuracy
-            response.success, response.message = True, msg
-            self.get_logger().info(msg)
-        except CalibrationError as err:
-            cal = getattr(err, 'calibration', None)
-            accuracy = None if cal is None else cal.predicted_accuracy
-            response.success = False
-            response.message = f'refused: {err}'
+        held = [Window.from_detector(w) for w in self.detector.peek()]
+        outcome = self.solve(held)
+        response.success, response.message = outcome.accepted, outcome.message()
+        if outcome.accepted:
+            for warning in outcome.warnings:
+                self.get_logger().warning(warning)
+            for o in (outcome.gyro, outcome.magnetometer):
+                if o.status in ('insufficient', 'refused'):
+                    self.get_logger().warning(f'{o.sensor} not calibrated ({o.status}): '
+                                              f'{o.reason}')
+            self.get_logger().info(response.message)
+        else:
             self.get_logger().warning(response.message)
         self._last_result = {'success': response.success, 'message': response.message,
-                             'predicted_accuracy': finite_or_none(accuracy, 6),
+                             'predicted_accuracy': finite_or_none(outcome.predicted_accuracy,
+                                                                  6),
                              'max_predicted_error': self.params['max_predicted_error']}
-        self._last_result.update(self._imu_report(response.success, response.message))
+        self._last_result.update(outcome.json_keys())
+        self._last_result['sensors'] = outcome.sensors()
         self._model_gap = None
         self.publish_status()
+        cal = outcome.calibration
         self._schedule_model_gap(held, None if cal is None or cal.thermal is None
                                  else len(cal.thermal.usable))
         return response
 
-    def _thermal_wanted(self, temps, mode=None):
-        mode = mode or self.params['thermal']
-        if mode == 'off':
-            return False
-        finite = temps[np.isfinite(temps)]
-        if mode == 'on':
-            if not len(finite):
-                raise CalibrationError('thermal:=on but no temperature was received')
-            return True
-        bands, counts = np.unique(np.floor(finite / self.params['band_width_c']),
-                                  return_counts=True)
-        return int(np.sum(counts >= MIN_WINDOWS_PER_BAND)) >= 2
-
-    def gyro_bias(self, windows):
-        """
-        Gyroscope bias from the static windows: their gyro means weighted by samples.
-
-        :param windows: window dicts.
-        :return: (3,) rad/s, or None when no window carries the gyro.
-        """
-        rows = [(w['gyro_mean'], w['count']) for w in windows
-                if w.get('gyro_mean') is not None and np.all(np.isfinite(w['gyro_mean']))]
-        if not rows:
-            return None
-        means = np.array([r[0] for r in rows], float)
-        weights = np.array([r[1] for r in rows], float)
-        return weights @ means / weights.sum()
+    def settings(self):
+        """Return the session settings of the parameters now."""
+        p = self.params
+        return Settings(method=p['method'], gravity=p['gravity'], thermal=p['thermal'],
+                        band_width_c=p['band_width_c'],
+                        max_predicted_error=p['max_predicted_error'],
+                        max_residual_ratio=p['max_residual_ratio'], refuse_unphysical=True,
+                        max_scale_error=p['max_scale_error'],
+                        max_cross_axis=p['max_cross_axis'], max_bias_g=p['max_bias_g'],
+                        max_gyro_error=p['max_gyro_error'], max_mag_error=p['max_mag_error'],
+                        field_uT=p['field_uT'] or None,
+                        sensor_id=p['sensor_id'] or self.frame_id or None,
+                        source=f'ros node {self.get_fully_qualified_name()}', words=NODE)
 
     def solve(self, held=()):
         """
-        Fit, check and save.
+        Fit, judge (``session.accept``) and save (``session.persist``).
 
         :param held: windows of the pose being held now (not yet finished).
-        :return: (Calibration, success message).
-        :raises CalibrationError: the reason for refusal (``.calibration`` attached when
-            a fit was made).
+        :return: the session Outcome (``refusal`` says why when it is not accepted).
         """
-        p = self.params
-        g = p['gravity']
-        windows = list(self.windows) + list(held)
-        means, weights, temps, noise = self._arrays(held)
-        if len(means) == 0:
-            raise CalibrationError('no static windows collected yet: hold the sensor still '
-                                   'in at least 10 different orientations, 2 s each')
-        thermal = self._thermal_wanted(temps)
-        extra = {}
-        gyro = [w.get('gyro_mean') for w in windows]
-        if _accepts(calibrate, 'gyro_means') and all(
-                v is not None and np.all(np.isfinite(v)) for v in gyro):
-            extra['gyro_means'] = np.array(gyro, float).reshape(-1, 3)   # per band too
+        from ..session.persist import save
+        windows = self.window_set(held)
+        obs = windows.observations(self.params['max_weight_s'], self.detector.rate_hz)
         try:
-            cal = calibrate(means, gravity=g, method=p['method'], weights=weights,
-                            temps=temps if thermal else None, thermal=thermal,
-                            band_width_c=p['band_width_c'], noise_std=noise,
-                            source=f'ros node {self.get_fully_qualified_name()}', **extra)
+            outcome = fit_and_accept(obs, self.settings(), CollectedImu(self.imu, windows))
         except InputError as err:
-            raise CalibrationError(str(err)) from None
-        except np.linalg.LinAlgError as err:
-            raise CalibrationError(f'the fit failed numerically ({err}): '
-                                   'add more distinct poses') from None
-        self._complete(cal, windows, temps)
-
-        def refuse(text):
-            err = CalibrationError(text)
-            err.calibration = cal
-            return err
-
-        acc = cal.predicted_accuracy
-        verdict = review(cal, p['max_predicted_error'], refuse_unphysical=True,
-                         max_scale_error=p['max_scale_error'],
-                         max_cross_axis=p['max_cross_axis'], max_bias_g=p['max_bias_g'],
-                         unit='m/s2', ml_hint="set the parameter 'method' to ml")
-        if not verdict.converged:
-            raise refuse(self._refusal(verdict))
-        expected = max(float(np.sqrt(np.mean(noise ** 2) / np.median(weights))),
-                       MIN_WINDOW_NOISE)
-        if not cal.residual_rms <= p['max_residual_ratio'] * expected:     # node only
-            raise refuse(
-                f'gravity-norm residual {cal.residual_rms:.4f} m/s2 is '
-                f'{cal.residual_rms / expected:.0f}x the expected window noise '
-                f'{expected:.4f} m/s2 (limit {p["max_residual_ratio"]:g}x): the sensor moved '
-                'during the poses or the model does not fit this sensor'
-                + ('' if thermal or not self._thermal_wanted(temps, 'auto') else
-                   '; the windows fill two temperature bands: try thermal:=auto')
-                + '; the model-gap check follows on ~/status')
-        if not verdict.accepted:
-            raise refuse(self._refusal(verdict))
-        for warning in verdict.warnings:
-            self.get_logger().warning(warning)
-        self.solve_imu(windows, cal)
-        bands = 0 if cal.thermal is None else len(cal.thermal.usable)
-        self._keep_level_trim(cal)
+            return Outcome(refusal=str(err), observations=len(obs)).refuse(str(err))
+        if not outcome.accepted:
+            return outcome
         self._make_directory(self.path)
         try:
-            save_calibration(cal, self.path)
-        except (OSError, InputError) as err:
-            raise refuse(f'cannot write {self.path}: {err}') from None
-        with np.printoptions(precision=5, suppress=True):
-            msg = (f'{cal.method} calibration from {len(means)} windows saved to '
-                   f'{self.path}: predicted accuracy {acc:.4f} m/s2 (limit '
-                   f'{p["max_predicted_error"]:g}), scale {np.round(cal.scale, 5).tolist()}, '
-                   f'bias {np.round(cal.bias, 4).tolist()} m/s2, non-orthogonality '
-                   f'{np.round(cal.nonorthogonality_deg, 3).tolist()} deg (xy, xz, yz), '
-                   f'residual {cal.residual_rms:.4f} m/s2, thermal bands {bands}')
-        if cal.gyro_bias is not None:
-            msg += f', gyro bias {np.round(cal.gyro_bias, 5).tolist()} rad/s'
-        msg += ''.join(f'. {outcome.line()}' for outcome in self._imu_result)
-        self.record_history(cal, windows, weights, temps)
-        return cal, msg
-
-    def solve_imu(self, windows, cal):
-        """
-        Fit the gyroscope and the magnetometer beside the accepted ``cal``; store what passes.
-
-        Never raises for them: an absent or insufficient sensor is reported (log, response,
-        ``~/status``) and left out of the file.
-        """
-        from ..core.outcomes import store
-        p = self.params
-        try:
-            gyro, mag = self.imu.solve(windows, cal, p['max_gyro_error'], p['max_mag_error'],
-                                       p['field_uT'] or None)
-        except (CalibrationError, InputError, ValueError, np.linalg.LinAlgError) as err:
-            from ..core.outcomes import SensorOutcome
-            gyro = SensorOutcome('gyroscope', 'insufficient', f'fit failed: {err}')
-            mag = SensorOutcome('magnetometer', 'insufficient', f'fit failed: {err}')
-        self._imu_result = (gyro, mag)
-        for outcome in (gyro, mag):
-            if outcome.status in ('insufficient', 'refused'):
-                self.get_logger().warning(f'{outcome.sensor} not calibrated '
-                                          f'({outcome.status}): {outcome.reason}')
-        store(cal, gyro, mag)
-
-    def _imu_report(self, success, message):
-        """Return the per-sensor statuses and the ``gyro_*``/``mag_*`` keys of a solve."""
-        from ..core.outcomes import json_keys, SensorOutcome, sensors_dict
-        if not success or self._imu_result is None:
-            why = 'not fitted: the accelerometer calibration was refused'
-            gyro = SensorOutcome('gyroscope', 'not fitted', why, unit='relative')
-            mag = SensorOutcome('magnetometer', 'not fitted', why, unit='uT')
-        else:
-            gyro, mag = self._imu_result
-        self._imu_result = None
-        d = json_keys(gyro, mag)
-        d['sensors'] = sensors_dict('calibrated' if success else 'refused', gyro, mag,
-                                    None if success else message)
-        return d
+            save(outcome, self.path, carry=('level trim',))
+        except (OSError, InputError, CalibrationError) as err:
+            return outcome.refuse(f'cannot write {self.path}: {err}')
+        self.record_history(outcome.calibration, windows, obs.weights)
+        return outcome
 
     def history_path(self):
         """Return the history database path ('' = next to the calibration file)."""
@@ -682,61 +553,26 @@ class CalibrationNode(Node):
         return os.path.join(os.path.dirname(os.path.abspath(calibration_path(
             self.params['calibration_file']))), 'history.sqlite')
 
-    def record_history(self, cal, windows, weights, temps):
+    def record_history(self, cal, windows, weights):
         """Record a saved calibration and its windows (a failure is logged, not fatal)."""
         if not self.params['history']:
             return
         import sqlite3
-        from ..dataio.history import History, new_session_id
+        from ..session.persist import record_history, window_times
         try:
             sensor = _sensor_param(cal.sensor_id or 'imu') or 'imu'
         except ParameterProblem as err:     # a frame_id no sensor id may be
             self.get_logger().warning(f'history not recorded: {err}')
             return
         now = self.get_clock().now().nanoseconds * 1e-9
-        times = np.array([w['t_mid'] for w in windows], float)
-        if not np.all(np.isfinite(times) & (times > 1e9)):     # device clock: use now
-            times = np.full(len(windows), now)
-        gyro = np.array([w['gyro_mean'] if w.get('gyro_mean') is not None
-                         else np.full(3, np.nan) for w in windows], float).reshape(-1, 3)
+        gyro = windows.gyro_mean if windows.gyro_mean is not None else \
+            np.full((len(windows), 3), np.nan)
         try:            # one session: the windows and the calibration, one transaction
-            with History(self.history_path()) as history:
-                history.record_session(sensor, new_session_id(), cal,
-                                       np.array([w['mean'] for w in windows], float), temps,
-                                       weights, times, gyro, windows=len(windows))
+            record_history(self.history_path(), sensor, cal, windows.mean, windows.temp,
+                           weights, window_times(windows.t_mid, now=now), gyro,
+                           windows=len(windows))
         except (InputError, ParameterProblem, sqlite3.Error, OSError, ValueError) as err:
             self.get_logger().warning(f'history not recorded: {err}')
-
-    def _keep_level_trim(self, cal):
-        """Carry the level trim of the file being replaced over (the mounting is the same)."""
-        if cal.level_roll_pitch_rad is not None or not os.path.exists(self.path):
-            return
-        from ..dataio.calibration_file import load_calibration
-        try:
-            cal.level_roll_pitch_rad = load_calibration(self.path).level_roll_pitch_rad
-        except InputError:
-            pass
-
-    def _complete(self, cal, windows, temps):
-        """Fill what the core leaves to the caller: accuracy, gyro bias, range, sensor id."""
-        if cal.predicted_accuracy is None and cal.covariance is not None:
-            from ..core.accuracy import predicted_accuracy
-            try:
-                acc = float(predicted_accuracy(cal.T, cal.covariance, cal.gravity))
-            except (ValueError, np.linalg.LinAlgError):
-                acc = math.inf
-            cal.predicted_accuracy = acc if math.isfinite(acc) else None
-        if cal.gyro_bias is None:
-            cal.gyro_bias = self.gyro_bias(windows)
-        finite_t = temps[np.isfinite(temps)]
-        if cal.temperature_range_c is None and len(finite_t):
-            cal.temperature_range_c = (float(finite_t.min()), float(finite_t.max()))
-        if cal.sensor_id is None:
-            cal.sensor_id = self.params['sensor_id'] or self.frame_id or None
-
-    def _refusal(self, verdict):
-        """Return the core's refusal (it names the poses to hold, as ``~/advice`` does)."""
-        return verdict.refusal
 
     # -- model-gap check (off the service's critical path) ------------------------------
     def _schedule_model_gap(self, held, thermal_bands):
@@ -754,37 +590,15 @@ class CalibrationNode(Node):
 
     def model_gap(self, windows, baseline, thermal_bands=None):
         """
-        Run the model-gap check on the windows; return a dict for ``~/status``.
+        Run the model-gap check on the windows (``session.gap``); return a dict for ``~/status``.
 
         Effects the calibration already models (the temperature tables when it has
         usable bands) are not reported as missing.
         """
-        from ..modelgap import diagnose_windows
-        if not windows:
-            return None
-        count = np.array([x['count'] for x in windows], int)
-        sw = StaticWindows(
-            start=np.zeros(len(windows), int), stop=count,
-            mean=np.array([x['mean'] for x in windows], float).reshape(-1, 3),
-            scatter=np.array([x['scatter'] for x in windows], float).reshape(-1, 3),
-            count=count, t_mid=np.array([x['t_mid'] for x in windows], float),
-            temp=np.array([x['temp'] for x in windows], float))
-        try:
-            report = diagnose_windows(sw, baseline, self.params['gravity'],
-                                      rate_hz=self.detector.rate_hz, replicates=0)
-        except (CalibrationError, InputError, ValueError, np.linalg.LinAlgError) as err:
-            self.get_logger().debug(f'model-gap check skipped: {err}')
-            return {'missing_effects': [], 'note': f'skipped: {err}'}
-        steps = [s for s in report.steps
-                 if not (thermal_bands and s['effect'] in THERMAL_EFFECTS)]
-        gap = {'baseline': baseline, 'missing_effects': [s['effect'] for s in steps],
-               'gap_before': finite_or_none(report.gap_before, 3),
-               'gap_after': finite_or_none(report.gap_after, 3), 'note': ''}
-        if steps:
-            details = '; '.join(f'{s["effect"]} ({s["evidence"]["magnitude"]})'
-                                for s in steps)
-            gap['note'] = (f'the data show {details}, which the {self.params["method"]} '
-                           'model does not include')
+        from ..session.gap import model_gap
+        gap = model_gap(WindowSet.from_windows(windows), baseline, self.params['gravity'],
+                        self.detector.rate_hz, thermal_bands, self.params['method'])
+        if gap and gap['note'] and not gap['note'].startswith('skipped'):
             self.get_logger().info(f'model-gap check: {gap["note"]}')
         return gap
 

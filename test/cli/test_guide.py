@@ -39,7 +39,7 @@ def test_one_window_per_held_pose_and_the_advice_follows():
         if guide.update(s.t[k:k + 37], s.accel[k:k + 37], s.temp[k:k + 37]):
             names.append(guide.advice.next_pose.name)
     assert len(guide.windows) == 8              # held 5 s each, captured once each
-    means = np.array([w['mean'] for w in guide.windows])
+    means = np.array([w.mean for w in guide.windows])
     u = means / np.linalg.norm(means, axis=1, keepdims=True)
     assert np.all(np.einsum('ij,ij->i', u, directions) > np.cos(np.radians(10)))
     assert names[-1] not in [n for _, n in CANDIDATE_POSES[:8]]
