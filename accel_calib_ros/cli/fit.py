@@ -41,6 +41,11 @@ def add_arguments(p):
                    metavar='M_S2',
                    help='refuse a fit whose predicted accuracy (RMS error at 1 g over all '
                         'orientations) is worse than this, m/s² (default %(default)s)')
+    p.add_argument('--max-residual-ratio', type=ranged(1.0, 1e6), default=10.0,
+                   metavar='RATIO',
+                   help='refuse a fit whose gravity-norm residual RMS exceeds this many times '
+                        'the error expected of a window mean from its noise (the sensor moved, '
+                        'or the model does not fit it; default %(default)s, as the node)')
     add_imu_arguments(p)
     p.add_argument('--force', action='store_true',
                    help='write the calibration even if the fit did not converge (loud '
@@ -298,10 +303,12 @@ def settings(args):
     from ..session.accept import CLI, Settings
     return Settings(method=args.method, gravity=args.gravity,
                     thermal='on' if args.thermal else 'off', band_width_c=args.band_width,
-                    max_predicted_error=args.max_predicted_error, max_residual_ratio=None,
-                    refuse_unphysical=False, allow_unconverged=args.force,
+                    max_predicted_error=args.max_predicted_error,
+                    max_residual_ratio=getattr(args, 'max_residual_ratio', 10.0),
+                    refuse_unphysical=True, allow_unconverged=args.force,
                     max_gyro_error=args.max_gyro_error, max_mag_error=args.max_mag_error,
-                    field_uT=args.field, source=os.path.basename(args.data), words=CLI)
+                    field_uT=args.field, sensor_id=getattr(args, 'sensor', None),
+                    source=os.path.basename(args.data), words=CLI)
 
 
 def run(args, out):
@@ -362,7 +369,7 @@ def run(args, out):
         sys.stdout.flush()
     elif refusal is None and args.output:
         from ..session.persist import save
-        save(outcome, args.output, carry=())
+        save(outcome, args.output)
     if refusal is None and getattr(args, 'history', None) is not None:
         extra['history'] = record_fit(args, cal, obs)
     summary = _fit_summary(cal, extra)

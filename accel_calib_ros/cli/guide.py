@@ -386,9 +386,9 @@ def _finish(session, output, label, console, history=None, sensor=None,
     """
     from ..session.accept import CLI, Settings
     from ..session.persist import record_history, save, window_times
-    outcome = session.finish(Settings(
-        max_predicted_error=max_predicted_error, max_residual_ratio=None,
-        refuse_unphysical=True, source=f'accel-calib guide ({label})', words=CLI))
+    outcome = session.finish(Settings(max_predicted_error=max_predicted_error,
+                                      source=f'accel-calib guide ({label})', sensor_id=sensor,
+                                      words=CLI))
     if outcome.calibration is None:
         console.print(f'cannot calibrate: {outcome.refusal}')
         return 1
@@ -396,10 +396,12 @@ def _finish(session, output, label, console, history=None, sensor=None,
         console.print(f'cannot calibrate: {outcome.refusal}; nothing written')
         return 1
     cal = outcome.calibration
-    save(outcome, output, carry=())
+    save(outcome, output)
     for o in (outcome.gyro, outcome.magnetometer):
         if o.status != 'absent':
             console.print(o.line())
+    for line in outcome.carried:
+        console.print(line)
     adv = session.advice
     console.print(f'enough: predicted accuracy {adv.predicted_accuracy:.4f} m/s² ≤ target '
                   f'{adv.target:.4f} m/s² after {len(session.windows)} poses')

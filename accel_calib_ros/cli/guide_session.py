@@ -58,13 +58,14 @@ class HoldTracker:
         """Return the noise floor now, m/s²."""
         return max(min(list(self._floors) + [self._block_min]), self.min_floor)
 
-    def update(self, t, a, temp=math.nan):
+    def update(self, t, a, temp=math.nan, gyro=None):
         """
         Add one sample; return a captured window (dict) or None.
 
         :param t: time, s.
         :param a: (3,) acceleration, m/s².
         :param temp: °C or NaN.
+        :param gyro: (3,) angular rate, rad/s, or None (the window's mean rate: the gyro bias).
         """
         a = [float(a[0]), float(a[1]), float(a[2])]
         if len(self._ring) == self.n:
@@ -95,7 +96,8 @@ class HoldTracker:
             if t - self._t0 < self.settle_s:
                 return None
             self.state, self._t0 = 'holding', t
-            self._acc = {'n': 0, 's': np.zeros(3), 's2': np.zeros(3), 'temp': [], 't0': t}
+            self._acc = {'n': 0, 's': np.zeros(3), 's2': np.zeros(3), 'temp': [], 't0': t,
+                         'g': np.zeros(3), 'g_n': 0}
         if self.state == 'holding':
             acc = self._acc
             v = np.array(a)
@@ -104,6 +106,9 @@ class HoldTracker:
             acc['s2'] += v * v
             if math.isfinite(temp):
                 acc['temp'].append(temp)
+            if gyro is not None and np.all(np.isfinite(gyro)):
+                acc['g'] += gyro
+                acc['g_n'] += 1
             self.progress = min((t - self._t0) / self.hold_s, 1.0)
             if self.progress >= 1.0 and acc['n'] >= 3:
                 self.state = 'captured'
@@ -113,7 +118,8 @@ class HoldTracker:
                 return {'mean': mean, 'scatter': scatter, 'count': n,
                         'temp': float(np.mean(acc['temp'])) if acc['temp'] else math.nan,
                         't_start': acc['t0'], 't_stop': t, 't_mid': 0.5 * (acc['t0'] + t),
-                        'rate_hz': (n - 1) / max(t - acc['t0'], 1e-9)}
+                        'rate_hz': (n - 1) / max(t - acc['t0'], 1e-9),
+                        'gyro_mean': acc['g'] / n if acc['g_n'] == n else None}
         return None
 
     def current(self):
@@ -177,7 +183,8 @@ class GuideSession:
         self._feed_imu(t, accel, temp, gyro, mag)
         new = []
         for k in range(len(t)):
-            window = self.tracker.update(t[k], accel[k], temp[k])
+            window = self.tracker.update(t[k], accel[k], temp[k],
+                                         None if gyro is None else gyro[k])
             if window is not None:
                 window = Window.from_detector(window)
                 self.windows.append(window)
@@ -244,7 +251,7 @@ class GuideSession:
         obs = self.observations()
         return calibrate(obs.readings, gravity=self.gravity, method=self.method,
                          weights=obs.weights, temps=obs.temps, noise_std=obs.noise,
-                         source=source)
+                         source=source, gyro_means=obs.gyro_means)
 
     def observations(self):
         """Return the session's Observations (the tracker's noise floor before any window)."""

@@ -539,7 +539,7 @@ class CalibrationNode(Node):
             return outcome
         self._make_directory(self.path)
         try:
-            save(outcome, self.path, carry=('level trim',))
+            save(outcome, self.path)
         except (OSError, InputError, CalibrationError) as err:
             return outcome.refuse(f'cannot write {self.path}: {err}')
         self.record_history(outcome.calibration, windows, obs.weights)

@@ -45,6 +45,7 @@ class Words:
     How a front door spells what its user can change (an option, a parameter).
 
     :param limit: the name of the predicted-accuracy limit.
+    :param residual_limit: the name of the residual-ratio limit.
     :param unit: the spelling of m/s².
     :param ml_hint: how to ask for the 9-parameter method.
     :param thermal_hint: how to switch the temperature tables on.
@@ -57,6 +58,7 @@ class Words:
     """
 
     limit: str = '--max-predicted-error'
+    residual_limit: str = '--max-residual-ratio'
     unit: str = 'm/s²'
     ml_hint: str = 'use --method ml'
     thermal_hint: str = 'add --thermal'
@@ -70,8 +72,8 @@ class Words:
 
 CLI = Words()
 """The words of ``accel-calib fit`` and ``guide``."""
-NODE = Words(limit='max_predicted_error', unit='m/s2', ml_hint="set the parameter 'method' to ml",
-             thermal_hint='try thermal:=auto',
+NODE = Words(limit='max_predicted_error', residual_limit='max_residual_ratio', unit='m/s2',
+             ml_hint="set the parameter 'method' to ml", thermal_hint='try thermal:=auto',
              follow_up='; the model-gap check follows on ~/status', unconverged='',
              no_windows='no static windows collected yet: hold the sensor still in at '
                         'least 10 different orientations, 2 s each',
@@ -394,8 +396,9 @@ def _residual_refusal(cal, obs, s, thermal):
         hint = f'; the windows fill two temperature bands: {words.thermal_hint}'
     return (f'gravity-norm residual {cal.residual_rms:.4f} {words.unit} is '
             f'{cal.residual_rms / expected:.0f}x the expected window noise {expected:.4f} '
-            f'{words.unit} (limit {s.max_residual_ratio:g}x): the sensor moved during the '
-            f'poses or the model does not fit this sensor{hint}{words.follow_up}')
+            f'{words.unit} (limit {s.max_residual_ratio:g}x, {words.residual_limit}): the sensor '
+            f'moved during the poses or the model does not fit this sensor{hint}'
+            f'{words.follow_up}')
 
 
 def _drop_implausible_gyro_bias(cal):

@@ -288,3 +288,20 @@ def test_a_sensor_without_data_is_reported_never_fails_the_others(calibration_no
     # ~/reset forgets the IMU buffers too
     other.on_reset(Trigger.Request(), Trigger.Response())
     assert other.imu.mag_samples() is None
+
+
+def test_an_accelerometer_only_session_keeps_the_files_other_parts(calibration_node, tmp_path,
+                                                                   imu_session):
+    """Issue 27: a new session without a magnetometer no longer drops the file's one."""
+    path = tmp_path / 'calibration.yaml'
+    save_calibration(imu_calibration(), path)
+    before = load_calibration(path)
+    node = calibration_node()
+    feed(node, imu_session.samples, magnetometer=False)
+    response = node.on_calibrate(Trigger.Request(), Trigger.Response())
+    assert response.success, response.message
+    assert 'magnetometer: absent' in response.message
+    assert 'magnetometer: carried forward from the file it replaces' in response.message
+    cal = load_calibration(path)
+    np.testing.assert_allclose(cal.magnetometer.hard_iron_uT, before.magnetometer.hard_iron_uT)
+    assert not np.allclose(cal.gyro_T, before.gyro_T)      # this session's own gyroscope

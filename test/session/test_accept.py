@@ -149,3 +149,14 @@ def test_the_model_gap_check_names_what_the_model_misses():
     gap = model_gap(windows_of(means, scatter=sensor.noise_std[0]), 'gn', 9.80665, 200.0)
     assert 'nonorthogonality' in gap['missing_effects'] and 'gn model' in gap['note']
     assert model_gap(WindowSet.from_windows([]), 'ml', 9.80665) is None
+
+
+def test_every_door_refuses_the_residual_in_its_own_words():
+    rng = np.random.default_rng(9)
+    _, means = session(20)
+    moved = windows_of(means + rng.normal(0, 0.2, means.shape)).observations(5.0, 200.0)
+    node, cli = (fit_and_accept(moved, Settings(words=w)).refusal for w in (NODE, CLI))
+    assert 'max_residual_ratio' in node and 'model-gap check follows on ~/status' in node
+    assert '--max-residual-ratio' in cli and 'accel-calib diagnose DATA' in cli
+    assert fit_and_accept(moved, Settings(max_residual_ratio=None, max_predicted_error=1.0,
+                                          words=CLI)).refusal is None

@@ -56,3 +56,53 @@ def test_history_records_one_session(tmp_path):
     with History(tmp_path / 'h.sqlite', readonly=True) as h:
         (row,) = h.calibrations('imu_link')
         assert abs(row['predicted_accuracy'] - outcome.predicted_accuracy) < 1e-12
+
+
+def imu_file(path, sensor_id=None):
+    """Save a calibration with a level trim, a gyroscope T and a magnetometer part."""
+    from accel_calib_ros.core.calibration import MagnetometerPart
+    mag = MagnetometerPart(T=np.diag([0.97, 1.02, 1.01]), hard_iron_uT=[12.0, -25.0, 7.5],
+                           R=np.eye(3), field_uT=48.0, dip_deg=61.0, predicted_accuracy=0.05)
+    save_calibration(Calibration(T=np.eye(3), bias=np.zeros(3), gyro_bias=[0.01, 0.0, 0.0],
+                                 gyro_T=np.diag([1.02, 0.98, 1.01]),
+                                 gyro_predicted_accuracy=4e-3, magnetometer=mag,
+                                 level_roll_pitch_rad=(0.01, -0.02), sensor_id=sensor_id),
+                     path)
+
+
+def test_what_this_session_could_not_calibrate_is_carried_forward_and_said(tmp_path):
+    path = tmp_path / 'calibration.yaml'
+    imu_file(path, 'imu_link')
+    outcome, _ = accepted(sensor_id='imu_link')           # accelerometer only
+    save(outcome, path)
+    cal = load_calibration(path)
+    np.testing.assert_allclose(cal.gyro_T, np.diag([1.02, 0.98, 1.01]))
+    np.testing.assert_allclose(cal.gyro_bias, [0.01, 0.0, 0.0])
+    assert cal.magnetometer is not None and cal.magnetometer.field_uT == 48.0
+    assert cal.level_roll_pitch_rad == (0.01, -0.02)
+    assert np.allclose(cal.T, outcome.calibration.T)        # the new accelerometer
+    said = ' | '.join(outcome.carried)
+    assert 'gyroscope: scale and misalignment carried forward' in said
+    assert 'magnetometer: carried forward' in said and 'level trim' in said
+    assert "this session's is absent" in said
+    message = outcome.message()
+    assert 'gyroscope: absent' in message and 'carried forward' in message
+
+
+def test_another_sensors_parts_are_not_carried_forward(tmp_path):
+    path = tmp_path / 'calibration.yaml'
+    imu_file(path, 'other_imu')
+    outcome, _ = accepted(sensor_id='imu_link')
+    save(outcome, path)
+    cal = load_calibration(path)
+    assert cal.gyro_T is None and cal.magnetometer is None and cal.level_roll_pitch_rad is None
+    assert all('not carried forward: the file it replaces was for sensor other_imu' in line
+               for line in outcome.carried) and len(outcome.carried) == 2
+    # Nothing to carry: no file, or an unreadable one.
+    fresh, _ = accepted()
+    save(fresh, tmp_path / 'new' / 'c.yaml')
+    assert fresh.carried == [] and (tmp_path / 'new' / 'c.yaml').exists()
+    (tmp_path / 'bad.yaml').write_text('not: [a calibration')
+    again, _ = accepted()
+    save(again, tmp_path / 'bad.yaml')
+    assert again.carried == [] and load_calibration(tmp_path / 'bad.yaml').T is not None
