@@ -300,7 +300,10 @@ def _imu_summary(outcome):
 
 def settings(args):
     """Return the session settings of the ``fit`` options."""
+    from .common import unit_options
+    from ..dataio.calibration_file import input_units
     from ..session.accept import CLI, Settings
+    units = unit_options(args)
     return Settings(method=args.method, gravity=args.gravity,
                     thermal='on' if args.thermal else 'off', band_width_c=args.band_width,
                     max_predicted_error=args.max_predicted_error,
@@ -308,6 +311,8 @@ def settings(args):
                     refuse_unphysical=True, allow_unconverged=args.force,
                     max_gyro_error=args.max_gyro_error, max_mag_error=args.max_mag_error,
                     field_uT=args.field, sensor_id=getattr(args, 'sensor', None),
+                    input_units=input_units(units['units'], units['counts_per_g'],
+                                            units['counts_offset']),
                     source=os.path.basename(args.data), words=CLI)
 
 

@@ -384,11 +384,11 @@ def _finish(session, output, label, console, history=None, sensor=None,
 
     :return: the exit status (1 when the fit is refused: nothing written).
     """
-    from ..session.accept import CLI, Settings
+    from ..session.accept import CLI, Settings, SI_UNITS
     from ..session.persist import record_history, save, window_times
     outcome = session.finish(Settings(max_predicted_error=max_predicted_error,
                                       source=f'accel-calib guide ({label})', sensor_id=sensor,
-                                      words=CLI))
+                                      input_units=SI_UNITS, words=CLI))
     if outcome.calibration is None:
         console.print(f'cannot calibrate: {outcome.refusal}')
         return 1

@@ -16,7 +16,9 @@ scipy-free ``core.calibration`` only.
 The optional IMU parts (interface.md §9, §10) are validated the same way: ``gyro: {T, bias,
 predicted_accuracy}`` (T well-conditioned, near identity; bias as ``gyro_bias_rad_s``)
 and ``magnetometer: {T, hard_iron_uT, R, field_uT, dip_deg, predicted_accuracy}`` (T
-well-conditioned, R a rotation, plausible field and dip). One gyro bias per file: the
+well-conditioned, R a rotation, plausible field and dip). ``input_units: {accel, counts_per_g,
+counts_offset}`` records how the fitted readings were turned into m/s² (``dataio.units``;
+``apply`` uses it and refuses another conversion). One gyro bias per file: the
 writer puts the same vector in ``gyro_bias_rad_s`` and ``gyro.bias``; the loader takes
 ``gyro.bias`` when only it is given and refuses a file whose two differ (by more than
 ``SAME_GYRO_BIAS_RAD_S``), so neither silently wins over the other.
@@ -110,7 +112,19 @@ def _to_dict(cal):
             'matrix': [_floats(row) for row in cal.covariance]}
     if cal.thermal is not None:
         d['thermal'] = cal.thermal.to_dict()
+    if cal.input_units is not None:
+        d['input_units'] = _units_to_dict(cal.input_units)
     d.update(_imu_parts_to_dict(cal))
+    return d
+
+
+def _units_to_dict(units):
+    """Return the ``input_units`` block: the unit, and the counts conversion for counts."""
+    d = {'accel': str(units.get('accel'))}
+    if d['accel'] == 'counts':
+        for key in ('counts_per_g', 'counts_offset'):
+            value = units.get(key, 0.0 if key == 'counts_offset' else None)
+            d[key] = None if value is None else float(value)   # None: the loader refuses
     return d
 
 
@@ -362,6 +376,59 @@ def _thermal(value, gravity_raw):
     return ThermalTable(width, bands)
 
 
+INPUT_UNITS = ('m/s2', 'g', 'counts')
+"""The units ``input_units.accel`` may name (``dataio.units.UNITS``)."""
+
+
+def input_units(units='m/s2', counts_per_g=None, counts_offset=0.0):
+    """
+    Return the ``input_units`` record of a conversion to m/s² (``dataio.units.to_si``'s options).
+
+    :param units: 'm/s2', 'g' or 'counts'; ``counts_per_g``, ``counts_offset``: for counts.
+    """
+    if units != 'counts':
+        return {'accel': units or 'm/s2'}
+    return {'accel': 'counts', 'counts_per_g': float(counts_per_g),
+            'counts_offset': float(counts_offset or 0.0)}
+
+
+def same_conversion(a, b):
+    """Whether two ``input_units`` records convert alike (m/s2 and g are both exact)."""
+    if 'counts' not in (a['accel'], b['accel']):
+        return True
+    if a['accel'] != b['accel']:
+        return False
+    return (abs(a['counts_per_g'] - b['counts_per_g']) <= 1e-9 * b['counts_per_g']
+            and abs((a.get('counts_offset') or 0.0) - (b.get('counts_offset') or 0.0)) <= 1e-9)
+
+
+def conversion_words(units):
+    """Say an ``input_units`` record in words (``counts at 16384 counts per g, offset 0``)."""
+    if units['accel'] != 'counts':
+        return units['accel']
+    return (f'counts at {units["counts_per_g"]:g} counts per g, offset '
+            f'{units.get("counts_offset") or 0.0:g}')
+
+
+def _input_units(value):
+    """Parse the ``input_units`` block into a dict (``accel``; counts: their conversion)."""
+    u = _mapping(value, 'input_units')
+    unit = _string(u.get('accel'), 'input_units.accel', 10)
+    if unit not in INPUT_UNITS:
+        raise _Bad(f'input_units.accel must be one of {", ".join(INPUT_UNITS)}, found '
+                   f'{_found(u.get("accel"))}')
+    if unit != 'counts':
+        if u.get('counts_per_g') is not None or u.get('counts_offset') not in (None, 0, 0.0):
+            raise _Bad(f'input_units: counts_per_g and counts_offset belong to counts, not '
+                       f'{unit}')
+        return {'accel': unit}
+    return {'accel': unit,
+            'counts_per_g': _number(u.get('counts_per_g'), 'input_units.counts_per_g', 1e-3,
+                                    1e9),
+            'counts_offset': _number(u.get('counts_offset', 0.0) or 0.0,
+                                     'input_units.counts_offset', -1e9, 1e9)}
+
+
 def _calibration(d):
     d = _mapping(d, 'the file')
     if d.get('format') != FORMAT:
@@ -431,7 +498,8 @@ def _calibration(d):
         level_roll_pitch_rad=None if level is None else tuple(level),
         sensor_id=_optional(d, 'sensor_id', lambda v: _string(v, 'sensor_id', 200)),
         gyro_T=gyro_T, gyro_predicted_accuracy=gyro_accuracy,
-        magnetometer=_optional(d, 'magnetometer', _magnetometer_part))
+        magnetometer=_optional(d, 'magnetometer', _magnetometer_part),
+        input_units=_optional(d, 'input_units', _input_units))
 
 
 def calibration_from_dict(d):

@@ -51,7 +51,8 @@ from ..core.errors import CalibrationError, InputError
 from ..core.finite import finite_or_none
 from ..core.outcomes import DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR
 from ..core.windows import DEFAULTS, OnlineStaticDetector
-from ..session.accept import CollectedImu, fit_and_accept, NODE, Outcome, Settings, THERMAL_MODES
+from ..session.accept import (CollectedImu, fit_and_accept, NODE, Outcome, Settings, SI_UNITS,
+                              THERMAL_MODES)
 from ..session.windows import Window, WindowSet
 
 METHODS = ('ml', 'gn', 'ml-bc')
@@ -519,6 +520,7 @@ class CalibrationNode(Node):
                         max_gyro_error=p['max_gyro_error'], max_mag_error=p['max_mag_error'],
                         field_uT=p['field_uT'] or None,
                         sensor_id=p['sensor_id'] or self.frame_id or None,
+                        input_units=SI_UNITS,
                         source=f'ros node {self.get_fully_qualified_name()}', words=NODE)
 
     def solve(self, held=()):

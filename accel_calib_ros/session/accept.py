@@ -35,6 +35,8 @@ accelerometer's bias does not repeat between poses better than about 0.5 mg (bia
 instability, hand and table vibration), and a 6-parameter ``gn`` fit leaves a
 residual of that order on a sensor with small cross-axis terms. Below this floor a
 residual is never a reason to refuse."""
+SI_UNITS = {'accel': 'm/s2'}
+"""The ``input_units`` of readings that come in m/s² (sensor_msgs/Imu, the guide's sources)."""
 NOT_FITTED = 'not fitted: the accelerometer calibration was refused'
 """Reason of a gyroscope or magnetometer that was not fitted because of the accelerometer."""
 
@@ -103,6 +105,9 @@ class Settings:
     :param max_gyro_error: the gyroscope's limit (relative); ``max_mag_error`` (µT).
     :param field_uT: known field magnitude, µT, or None (fitted).
     :param sensor_id: the sensor's name, written into the calibration (None: none).
+    :param input_units: how the readings were turned into m/s² (``accel``: 'm/s2', 'g' or
+        'counts' with ``counts_per_g`` and ``counts_offset``), written into the
+        calibration: it is right only for readings converted the same way.
     :param source: where the data came from (written into the calibration).
     :param words: how the door spells its options.
     """
@@ -122,6 +127,7 @@ class Settings:
     max_mag_error: float = DEFAULT_MAX_MAG_ERROR
     field_uT: Optional[float] = None
     sensor_id: Optional[str] = None
+    input_units: Optional[dict] = None
     source: str = ''
     words: Words = CLI
 
@@ -366,7 +372,7 @@ def fit_and_accept(obs, settings, imu=None):
 
 
 def _complete(cal, obs, s):
-    """Fill what the fit leaves to the door: accuracy, sensor, temperature range."""
+    """Fill what the fit leaves to the door: accuracy, sensor, units, temperature range."""
     if cal.predicted_accuracy is None and cal.covariance is not None:
         from ..core.accuracy import predicted_accuracy
         try:
@@ -381,6 +387,8 @@ def _complete(cal, obs, s):
             cal.temperature_range_c = (float(finite.min()), float(finite.max()))
     if cal.sensor_id is None and s.sensor_id:
         cal.sensor_id = s.sensor_id
+    if s.input_units is not None:
+        cal.input_units = dict(s.input_units)
 
 
 def _residual_refusal(cal, obs, s, thermal):
