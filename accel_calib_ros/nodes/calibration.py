@@ -1,75 +1,58 @@
 """
 ROS 2 node ``accel_calibration``: collect static poses, advise, solve on request, save.
 
-A thin shell around :mod:`accel_calib_ros.core`:
-
-- ``imu/data_raw`` (sensor_msgs/Imu) and ``imu/temperature`` (sensor_msgs/Temperature),
-  both with the sensor-data QoS, are buffered and handed in chunks to the
-  :class:`~accel_calib_ros.core.windows.OnlineStaticDetector`, the streaming form of
-  the detector ``accel-calib fit`` uses (same parameters, same windows; the sample rate
-  is tracked all along; the gyro joins the stillness test). At most ``max_windows``
-  windows are kept.
-- after each window: one log line, the advice of :func:`core.advice.advise` (interface.md §5
-  JSON) on ``~/advice`` and the progress on ``~/status`` (both std_msgs/String JSON,
-  reliable, transient local, depth 1), and ``/diagnostics`` at 1 Hz.
-- ``~/calibrate`` (std_srvs/Trigger) fits ``method`` to the windows and, only if the
-  result is sound (converged, residual, physical, predicted accuracy at most
-  ``max_predicted_error``), writes ``calibration_file`` atomically with the gyro bias
-  of the windows; otherwise it refuses with the reason and the file stays byte-for-byte
-  as it was. The model-gap check runs after the response and is published on
-  ``~/status``. ``~/reset`` forgets the collected windows.
-- the whole IMU (interface.md §9, §10): the raw samples (bounded ring, ``max_gyro_samples``)
-  and ``imu/mag`` (sensor_msgs/MagneticField, tesla; decimated, ``max_mag_samples``)
-  are kept (:class:`core.collector.ImuCollector`); once the accelerometer calibration
-  is accepted, ``~/calibrate`` also fits the gyroscope's scale and misalignment from
-  the moves between the windows and the magnetometer, and stores each part that
-  passes its own limit (``max_gyro_error``, ``max_mag_error``). A sensor whose data
-  are absent or insufficient is reported as such (response, ``~/status``), never as a
-  failure of the accelerometer calibration.
+The live front door of the session floor; docs/calibration_node.md describes it whole.
+The samples come in on a node and thread of their own (:mod:`.calibration_intake`); every
+0.1 s they go to the streaming static-window detector and to the IMU collector, and each
+window brings the advice (``~/advice``, ``~/status``, ``/diagnostics``). ``~/calibrate``
+fits, judges and saves with the session floor (``session.accept.fit_and_accept``,
+``session.persist``) in a worker thread (:mod:`.calibration_job`) and answers when it is
+done, while the samples, ``/diagnostics`` and the parameter services go on; a second
+call meanwhile is refused with the reason. The model-gap check follows in the worker and
+lands on ``~/status``.
 """
 
 from collections import deque
 import json
 import math
 import os
+import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
+from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data, QoSProfile,
-                       ReliabilityPolicy)
-from sensor_msgs.msg import Imu, MagneticField, Temperature
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.task import Future
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from .common import (calibration_path, declare_parameters, expand_path, make_directory, Param,
+from .calibration_intake import Intake, subscribe
+from .calibration_job import Job, run_job, worker
+from .calibration_params import check_rate, METHODS, PARAMS, sensor_param  # noqa: F401
+from .common import (calibration_path, declare_parameters, expand_path, make_directory,
                      ParameterProblem, run, unsafe_output)
 from ..core.advice import advise, coverage
-from ..core.collector import DEFAULT_MAX_MAG_SAMPLES, DEFAULT_MAX_SAMPLES, ImuCollector
-from ..core.constants import G0
+from ..core.collector import ImuCollector
 from ..core.errors import CalibrationError, InputError
 from ..core.finite import finite_or_none
-from ..core.outcomes import DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR
 from ..core.windows import DEFAULTS, OnlineStaticDetector
-from ..session.accept import (CollectedImu, fit_and_accept, NODE, Outcome, Settings, SI_UNITS,
-                              THERMAL_MODES)
+from ..session.accept import CollectedImu, NODE, Outcome, Settings, SI_UNITS
 from ..session.windows import Window, WindowSet
 
-METHODS = ('ml', 'gn', 'ml-bc')
-MIN_RATE_HZ = 1.0
-"""Lowest nonzero ``rate_hz`` accepted, Hz (an IMU below 1 Hz is a unit mistake)."""
-QUEUE_DEPTH = 200
-"""Input queue depth (samples): 1 s at 200 Hz, 0.2 s at 1 kHz."""
-CHUNK = 100
-"""Samples buffered before they go to the detector (also flushed every 0.1 s)."""
 LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
                      reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+PROCESS_PERIOD_S = 0.1
+"""How often the samples taken in go to the detector, s."""
+COLLECT_BLOCK = 200
+"""Samples handed to the collector at a time (the magnetometer samples of their time between)."""
 
 
-def stamp_seconds(stamp):
-    """builtin_interfaces/Time as float seconds."""
-    return stamp.sec + stamp.nanosec * 1e-9
+def hardware_id(frame_id):
+    """Return the ``/diagnostics`` hardware_id of a sensor: its IMU frame_id (one per sensor)."""
+    return frame_id or ''
 
 
 def safe_json(obj):
@@ -89,78 +72,6 @@ def safe_json(obj):
     return json.dumps(clean(obj), allow_nan=False)
 
 
-def _detector_param(name, description):
-    return Param(name, 0.0, description + f' (0 = as accel-calib fit: {DEFAULTS[name]:g} s)'
-                 if name.endswith('_s') else description
-                 + f' (0 = as accel-calib fit: {DEFAULTS[name]:g})', low=0.0, high=60.0)
-
-
-PARAMS = [
-    Param('method', 'ml', 'solver: ml (Sun & Xu, 9 parameters), gn (6 parameters) or ml-bc',
-          choices=METHODS),
-    Param('calibration_file', '',
-          "YAML file written by ~/calibrate ('' = $ROS_HOME/accel_calib_ros/"
-          'calibration.yaml); its directory is created'),
-    Param('gravity', G0, 'local gravity magnitude, m/s2', low=9.7, high=9.9),
-    Param('band_width_c', 10.0, 'width of a temperature band, degC', low=0.1, high=100.0),
-    Param('thermal', 'auto',
-          'auto: temperature-band tables when >= 2 bands are filled; on; off',
-          choices=THERMAL_MODES),
-    Param('max_residual_ratio', 10.0,
-          'refuse when the gravity-norm residual RMS exceeds this x window-mean noise',
-          low=1.0),
-    Param('max_scale_error', 0.2, 'refuse when |T_ii - 1| exceeds this', low=0.0,
-          low_open=True, high=1.0),
-    Param('max_cross_axis', 0.1, 'refuse when |T_ij| / T_ii exceeds this', low=0.0,
-          low_open=True, high=1.0),
-    Param('max_bias_g', 0.25, 'refuse when a bias exceeds this many g', low=0.0,
-          low_open=True, high=2.0),
-    Param('max_predicted_error', 0.02,
-          'refuse when the predicted accuracy (RMS error at 1 g over all orientations) '
-          'exceeds this, m/s2', low=0.0, low_open=True, high=10.0),
-    Param('target_accuracy', 0.01,
-          'predicted accuracy that is enough: the advice says "enough" below it, m/s2',
-          low=0.0, low_open=True, high=10.0),
-    _detector_param('window_s', 'moving standard deviation window, s'),
-    _detector_param('min_duration_s', 'shortest static window kept after trimming, s'),
-    _detector_param('trim_s', 'cut from each end of a still stretch, s'),
-    _detector_param('threshold_factor', 'still when moving std < factor x noise floor'),
-    Param('use_gyro', True, 'the angular rate must be still too (when the driver sends it)'),
-    Param('max_windows', 500, 'windows kept; the oldest are dropped beyond', low=10,
-          high=100000),
-    Param('max_weight_s', 5.0, 'a window weighs at most this many seconds of samples',
-          low=1e-3, high=3600.0),
-    Param('rate_hz', 0.0,
-          'sample rate to start with, Hz: 0 (measure it from the stamps; always tracked) '
-          f'or {MIN_RATE_HZ:g} .. 100000', low=0.0, high=100000.0),
-    Param('sensor_id', '',
-          "name of the sensor in the history ('' = the messages' frame_id); printable, "
-          'surrounding spaces dropped'),
-    Param('history', True,
-          'record each saved calibration and its windows in the history database'),
-    Param('history_file', '',
-          "history database ('' = history.sqlite next to calibration_file)"),
-    Param('max_gyro_samples', DEFAULT_MAX_SAMPLES,
-          'raw samples kept for the gyroscope scale/misalignment fit (36 bytes each; the '
-          'moves between the windows still kept are used; 0 = no gyro T)', low=0,
-          high=10_000_000, read_only=True),
-    Param('max_mag_samples', DEFAULT_MAX_MAG_SAMPLES,
-          'imu/mag samples kept for the magnetometer fit (decimated by 2 whenever full; '
-          '0 = no magnetometer calibration)', low=0, high=1_000_000, read_only=True),
-    Param('max_gyro_error', DEFAULT_MAX_GYRO_ERROR,
-          'store the gyro scale/misalignment only when its predicted accuracy (RMS '
-          'relative rate error over all directions) is at most this', low=0.0,
-          low_open=True, high=1.0),
-    Param('max_mag_error', DEFAULT_MAX_MAG_ERROR,
-          'store the magnetometer calibration only when its predicted accuracy (RMS field '
-          'error over all directions) is at most this, uT', low=0.0, low_open=True,
-          high=1000.0),
-    Param('field_uT', 0.0,
-          'known local magnetic field magnitude, uT (0 = fitted, trusting the '
-          'magnetometer sensitivity on average)', low=0.0, high=1000.0),
-]
-
-
 class CalibrationNode(Node):
     """Collect static windows from the raw IMU stream, advise, and calibrate on request."""
 
@@ -170,8 +81,8 @@ class CalibrationNode(Node):
         if self.params['threshold_factor'] and self.params['threshold_factor'] < 1.0:
             raise ParameterProblem("parameter 'threshold_factor' must be 0 or >= 1, got "
                                    f"{self.params['threshold_factor']!r}")
-        _check_rate(self.params['rate_hz'])
-        self.params['sensor_id'] = _sensor_param(self.params['sensor_id'])
+        check_rate(self.params['rate_hz'])
+        self.params['sensor_id'] = sensor_param(self.params['sensor_id'])
         expand_path(self.params['history_file'], 'history_file')
         self.path = calibration_path(self.params['calibration_file'])
         files = (('calibration_file', self.path), ('history_file', self.history_path()))
@@ -181,40 +92,48 @@ class CalibrationNode(Node):
                 self.get_logger().error(f'{what}: {reason}; it will not be written')
         self._make_directory(self.path)
         self.windows = deque(maxlen=self.params['max_windows'])
-        self.temperature = float('nan')
-        self.frame_id = ''
         self.detector = self._new_detector()
-        self._pending = []          # (t, ax, ay, az, gx, gy, gz, temp) not yet detected
         self._seq = 0
-        self._dropped = 0           # samples with a non-finite acceleration
         self._last_result = None    # {'success', 'message', ...} of the last ~/calibrate
         self._advice = None
         self._model_gap = None
-        self._gap_timer = None
+        self._coverage = None       # fraction of the sphere of field directions seen
         self.imu = ImuCollector(self.params['max_gyro_samples'],
                                 self.params['max_mag_samples'])
-        self._imu_result = None     # (gyro, magnetometer) SensorOutcome of ~/calibrate
-        self._coverage = None       # fraction of the sphere of field directions seen
+        self._worker = worker('accel_calibration_fit')
+        self._solving = None        # monotonic start of the ~/calibrate that runs, or None
+        self._gap = (0, None)       # (number of the check asked for, its finished future)
+        self._gap_asked = 0
+        self._gap_guard = self.create_guard_condition(self._on_model_gap)
 
         self.status_pub = self.create_publisher(String, '~/status', LATCHED)
         self.advice_pub = self.create_publisher(String, '~/advice', LATCHED)
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        # Sensor-data QoS (best effort, volatile) with a deeper queue than its 5, so a
-        # solve or a burst does not drop samples.
-        sub_qos = QoSProfile(depth=QUEUE_DEPTH, history=qos_profile_sensor_data.history,
-                             reliability=qos_profile_sensor_data.reliability,
-                             durability=qos_profile_sensor_data.durability)
-        self.create_subscription(Imu, 'imu/data_raw', self.on_imu, sub_qos)
-        self.create_subscription(Temperature, 'imu/temperature', self.on_temperature, sub_qos)
-        self.create_subscription(MagneticField, 'imu/mag', self.on_mag, sub_qos)
-        self.create_service(Trigger, '~/calibrate', self.on_calibrate)
+        # The samples on a node of their own: main() spins it on its own executor and
+        # thread, so nothing of this node's (services, timers, advice) delays them.
+        self.intake = Intake(lambda: self.get_clock().now().nanoseconds * 1e-9)
+        self.stream = Node('accel_calibration_stream', context=kwargs.get('context'),
+                           start_parameter_services=False,
+                           parameter_overrides=[Parameter('start_type_description_service',
+                                                          value=False)])
+        subscribe(self.stream, self.intake)
+        self.side_nodes = [self.stream]
+        # Re-entrant: a second call is answered (refused) while the first one runs.
+        self.create_service(Trigger, '~/calibrate', self.on_calibrate,
+                            callback_group=ReentrantCallbackGroup())
         self.create_service(Trigger, '~/reset', self.on_reset)
-        self.create_timer(0.1, self.process_pending)
+        self.create_timer(PROCESS_PERIOD_S, self.process_pending)
         self.create_timer(1.0, self.publish_diagnostics)
         self.publish_status(advice=True)
         self.get_logger().info(
             f'collecting static poses (method {self.params["method"]}, file {self.path}); '
             'hold each pose still for 2 s, follow ~/advice, then call ~/calibrate')
+
+    def destroy_node(self):
+        """Stop the worker (waiting for the work it has begun) and destroy the stream node."""
+        self._worker.shutdown(wait=True, cancel_futures=True)
+        self.stream.destroy_node()
+        return super().destroy_node()
 
     # -- parameters ------------------------------------------------------------------------
     def _detector_settings(self):
@@ -236,9 +155,9 @@ class CalibrationNode(Node):
         if changes.get('threshold_factor', 0.0) and changes['threshold_factor'] < 1.0:
             raise ParameterProblem("parameter 'threshold_factor' must be 0 or >= 1")
         if 'rate_hz' in changes:
-            _check_rate(changes['rate_hz'])
+            check_rate(changes['rate_hz'])
         if 'sensor_id' in changes:
-            self.params['sensor_id'] = _sensor_param(changes['sensor_id'])
+            self.params['sensor_id'] = sensor_param(changes['sensor_id'])
         if 'history_file' in changes:
             reason = unsafe_output(self.history_path())
             if reason:
@@ -263,56 +182,38 @@ class CalibrationNode(Node):
             self.publish_status(advice=True)
 
     # -- input -----------------------------------------------------------------------------
-    def on_temperature(self, msg):
-        """
-        Remember the latest temperature, °C.
-
-        :param msg: sensor_msgs/Temperature.
-        """
-        if math.isfinite(msg.temperature):
-            self.temperature = float(msg.temperature)
-
     def on_imu(self, msg):
-        """
-        Buffer one raw sample for the static-window detector.
-
-        :param msg: sensor_msgs/Imu with raw linear_acceleration, m/s².
-        """
-        a, w = msg.linear_acceleration, msg.angular_velocity
-        if not (math.isfinite(a.x) and math.isfinite(a.y) and math.isfinite(a.z)):
-            self._dropped += 1
-            return
-        t = stamp_seconds(msg.header.stamp)
-        if t <= 0.0:                                            # unstamped: receive time
-            t = self.get_clock().now().nanoseconds * 1e-9
-        if not self.frame_id:
-            self.frame_id = msg.header.frame_id
-        gyro_known = msg.angular_velocity_covariance[0] >= 0.0
-        self._pending.append((t, a.x, a.y, a.z) + ((w.x, w.y, w.z) if gyro_known
-                                                   else (math.nan,) * 3)
-                             + (self.temperature,))
-        if len(self._pending) >= CHUNK:
-            self.process_pending()
+        """Take one raw sample (sensor_msgs/Imu, serialised or not): :class:`Intake`."""
+        self.intake.on_imu(msg)
 
     def on_mag(self, msg):
-        """
-        Offer one magnetometer sample to the collector (tesla -> µT).
+        """Take one magnetometer sample (sensor_msgs/MagneticField, tesla)."""
+        self.intake.on_mag(msg)
 
-        :param msg: sensor_msgs/MagneticField in the accelerometer frame.
-        """
-        f = msg.magnetic_field
-        t = stamp_seconds(msg.header.stamp)
-        if t <= 0.0:                                            # unstamped: receive time
-            t = self.get_clock().now().nanoseconds * 1e-9
-        self.imu.add_mag(t, (f.x * 1e6, f.y * 1e6, f.z * 1e6))
+    def on_temperature(self, msg):
+        """Remember the latest temperature (sensor_msgs/Temperature)."""
+        self.intake.on_temperature(msg)
+
+    @property
+    def frame_id(self):
+        """Return the frame_id of the imu/data_raw messages ('' before the first)."""
+        return self.intake.frame_id
 
     def process_pending(self):
-        """Hand the buffered samples to the detector; keep and announce new windows."""
-        if not self._pending:
+        """Hand the samples taken in to the collector and the detector; announce new windows."""
+        rows, mags = self.intake.take()
+        rows = np.array(rows, float).reshape(-1, 8)
+        k = 0                   # each magnetometer sample joins the samples of its time
+        for start in range(0, len(rows), COLLECT_BLOCK):
+            block = rows[start:start + COLLECT_BLOCK]
+            while k < len(mags) and mags[k][0] <= block[-1, 0]:
+                self.imu.add_mag(mags[k][0], mags[k][1:4])
+                k += 1
+            self.imu.add_samples(block)
+        for m in mags[k:]:      # ahead of the samples: they wait for theirs
+            self.imu.add_mag(m[0], m[1:4])
+        if not len(rows):
             return
-        rows = np.array(self._pending, float)
-        self._pending = []
-        self.imu.add_samples(rows)
         gyro = rows[:, 4:7]
         windows = self.detector.feed(rows[:, 0], rows[:, 1:4], rows[:, 7],
                                      gyro if np.all(np.isfinite(gyro)) else None)
@@ -360,7 +261,8 @@ class CalibrationNode(Node):
         """Summarise the collection as a dict (what ``~/status`` publishes)."""
         means, weights, temps, noise = self._arrays()
         d = {'windows': len(means), 'rate_hz': finite_or_none(self.detector.rate_hz, 3),
-             'seq': self._seq, 'dropped_samples': self._dropped,
+             'seq': self._seq, 'dropped_samples': self.intake.dropped,
+             'samples_received': self.intake.received, 'calibrating': self._solving is not None,
              'coverage': {'min_eigenvalue_x3': 0.0, 'distinct_directions': 0},
              'predicted_accuracy': None, 'target_accuracy': self.params['target_accuracy'],
              'enough': False, 'next_pose': None, 'last_window': None,
@@ -421,7 +323,7 @@ class CalibrationNode(Node):
         acc = self._advice['predicted_accuracy'] if self._advice else None
         status = DiagnosticStatus(level=DiagnosticStatus.OK,
                                   name=f'{self.get_name()}: collection',
-                                  hardware_id=self.params['sensor_id'] or self.frame_id)
+                                  hardware_id=hardware_id(self.frame_id))
         status.message = f'{n} static windows' + (
             f', predicted accuracy {acc:.4f} m/s2' if acc is not None else '')
         if self.detector.rate_hz is None:
@@ -431,7 +333,9 @@ class CalibrationNode(Node):
             status.level = DiagnosticStatus.WARN
             status.message += '; last calibration refused'
         values = {'windows': n, 'rate_hz': finite_or_none(self.detector.rate_hz, 2),
-                  'dropped_non_finite_samples': self._dropped,
+                  'imu_received': self.intake.received,
+                  'dropped_non_finite_samples': self.intake.dropped,
+                  'calibrating': self._solving is not None,
                   'predicted_accuracy_m_s2': acc,
                   'target_accuracy_m_s2': self.params['target_accuracy'],
                   'calibration_file': self.path,
@@ -449,14 +353,14 @@ class CalibrationNode(Node):
     # -- services --------------------------------------------------------------------------
     def on_reset(self, request, response):
         """
-        Forget all collected windows.
+        Forget all collected windows (a calibration running goes on with its own copy).
 
         :param request: std_srvs/Trigger request (empty).
         :param response: std_srvs/Trigger response.
         :return: the response, success=True.
         """
         n = len(self.windows)
-        self._pending = []
+        self.intake.take()
         self.windows.clear()
         self.imu.clear()
         self.detector.finish()
@@ -467,34 +371,97 @@ class CalibrationNode(Node):
         self.get_logger().info(response.message)
         return response
 
-    def on_calibrate(self, request, response):
+    async def on_calibrate(self, request, response):
         """
-        Solve with the collected windows; save only a sound calibration.
+        Solve with the collected windows in the worker; save only a sound calibration.
 
-        The window being held right now counts too. The model-gap check runs after the
-        response (one-shot timer) and lands on ``~/status``.
+        The window being held right now counts too. The executor goes on while the worker
+        fits (this coroutine waits); a call while one runs is refused at once, with the
+        reason. The model-gap check runs after the response and lands on ``~/status``.
 
         :param request: std_srvs/Trigger request (empty).
         :param response: std_srvs/Trigger response.
         :return: the response: success, the key figures and the predicted accuracy, or
             the reason for refusal.
         """
+        if self._solving is not None:
+            response.success = False
+            response.message = (
+                'refused: a calibration is already running (started '
+                f'{time.monotonic() - self._solving:.1f} s ago); its result comes in the '
+                'response to that call and on ~/status')
+            self.get_logger().warning(response.message)
+            return response
+        self._solving = time.monotonic()
+        job = None
+        try:
+            job = self._job()
+            self.publish_status()
+            done = Future(executor=self.executor)
+            done.add_done_callback(lambda _: None)      # its result wakes the executor
+            self._worker.submit(run_job, job).add_done_callback(done.set_result)
+            outcome, notes = (await done).result()
+        except Exception as err:        # noqa: B902 - a bug must not take the node down
+            self.get_logger().error(f'~/calibrate failed: {type(err).__name__}: {err}')
+            outcome, notes = Outcome(refusal=f'internal error: {type(err).__name__}: {err}'), []
+            outcome.gyro, outcome.magnetometer = CollectedImu(None, None).not_fitted()
+        finally:
+            self._solving = None
+        self._report(outcome, notes, response)
+        if job is not None:
+            cal = outcome.calibration
+            self._schedule_model_gap(job.windows, None if cal is None or cal.thermal is None
+                                     else len(cal.thermal.usable))
+        return response
+
+    def calibrate_and_wait(self, timeout=300.0):
+        """
+        Run ``~/calibrate`` from this thread and wait for its response (a node not spun).
+
+        The same path as the service (the work in the worker thread); for scripts and tests
+        that drive the node's callbacks themselves.
+
+        :raises TimeoutError: no response within ``timeout`` s.
+        """
+        call = self.on_calibrate(Trigger.Request(), Trigger.Response())
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                call.send(None)
+            except StopIteration as done:
+                return done.value
+            if time.monotonic() > deadline:
+                call.close()
+                raise TimeoutError(f'~/calibrate did not answer within {timeout:g} s')
+            time.sleep(0.002)
+
+    def _job(self):
+        """Take what ~/calibrate needs, copied (the executor thread goes on changing it)."""
         self.process_pending()
         for window in self.detector.release():
             self._add(window, publish=False)
-        held = [Window.from_detector(w) for w in self.detector.peek()]
-        outcome = self.solve(held)
+        windows = self.window_set(self.detector.peek())
+        history = self.history_path() if self.params['history'] else None
+        return Job(windows=windows,
+                   obs=windows.observations(self.params['max_weight_s'],
+                                            self.detector.rate_hz),
+                   settings=self.settings(), imu=CollectedImu(self.imu.snapshot(), windows),
+                   path=self.path, history=history,
+                   now=self.get_clock().now().nanoseconds * 1e-9)
+
+    def _report(self, outcome, notes, response):
+        """Answer, log and publish the outcome of ~/calibrate (the executor thread)."""
         response.success, response.message = outcome.accepted, outcome.message()
+        log = self.get_logger()
         if outcome.accepted:
-            for warning in outcome.warnings:
-                self.get_logger().warning(warning)
+            for warning in outcome.warnings + notes:
+                log.warning(warning)
             for o in (outcome.gyro, outcome.magnetometer):
                 if o.status in ('insufficient', 'refused'):
-                    self.get_logger().warning(f'{o.sensor} not calibrated ({o.status}): '
-                                              f'{o.reason}')
-            self.get_logger().info(response.message)
+                    log.warning(f'{o.sensor} not calibrated ({o.status}): {o.reason}')
+            log.info(response.message)
         else:
-            self.get_logger().warning(response.message)
+            log.warning(response.message)
         self._last_result = {'success': response.success, 'message': response.message,
                              'predicted_accuracy': finite_or_none(outcome.predicted_accuracy,
                                                                   6),
@@ -503,10 +470,6 @@ class CalibrationNode(Node):
         self._last_result['sensors'] = outcome.sensors()
         self._model_gap = None
         self.publish_status()
-        cal = outcome.calibration
-        self._schedule_model_gap(held, None if cal is None or cal.thermal is None
-                                 else len(cal.thermal.usable))
-        return response
 
     def settings(self):
         """Return the session settings of the parameters now."""
@@ -523,30 +486,6 @@ class CalibrationNode(Node):
                         input_units=SI_UNITS,
                         source=f'ros node {self.get_fully_qualified_name()}', words=NODE)
 
-    def solve(self, held=()):
-        """
-        Fit, judge (``session.accept``) and save (``session.persist``).
-
-        :param held: windows of the pose being held now (not yet finished).
-        :return: the session Outcome (``refusal`` says why when it is not accepted).
-        """
-        from ..session.persist import save
-        windows = self.window_set(held)
-        obs = windows.observations(self.params['max_weight_s'], self.detector.rate_hz)
-        try:
-            outcome = fit_and_accept(obs, self.settings(), CollectedImu(self.imu, windows))
-        except InputError as err:
-            return Outcome(refusal=str(err), observations=len(obs)).refuse(str(err))
-        if not outcome.accepted:
-            return outcome
-        self._make_directory(self.path)
-        try:
-            save(outcome, self.path)
-        except (OSError, InputError, CalibrationError) as err:
-            return outcome.refuse(f'cannot write {self.path}: {err}')
-        self.record_history(outcome.calibration, windows, obs.weights)
-        return outcome
-
     def history_path(self):
         """Return the history database path ('' = next to the calibration file)."""
         value = self.params['history_file']
@@ -555,72 +494,47 @@ class CalibrationNode(Node):
         return os.path.join(os.path.dirname(os.path.abspath(calibration_path(
             self.params['calibration_file']))), 'history.sqlite')
 
-    def record_history(self, cal, windows, weights):
-        """Record a saved calibration and its windows (a failure is logged, not fatal)."""
-        if not self.params['history']:
+    # -- model-gap check (in the worker, after the response) -----------------------------
+    def _schedule_model_gap(self, windows, thermal_bands):
+        from ..session.gap import model_gap
+        self._gap_asked += 1
+        number = self._gap_asked
+        work = self._worker.submit(model_gap, windows, self._method(), self.params['gravity'],
+                                   self.detector.rate_hz, thermal_bands, self.params['method'])
+
+        def finished(future):           # the worker thread: hand it to the executor
+            self._gap = (number, future)
+            try:
+                self._gap_guard.trigger()
+            except Exception:           # noqa: B902 - the node was destroyed meanwhile
+                pass
+        work.add_done_callback(finished)
+
+    def _on_model_gap(self):
+        """Publish the model-gap check that just finished (the latest one asked for)."""
+        number, future = self._gap
+        if future is None or number != self._gap_asked or future.cancelled():
             return
-        import sqlite3
-        from ..session.persist import record_history, window_times
         try:
-            sensor = _sensor_param(cal.sensor_id or 'imu') or 'imu'
-        except ParameterProblem as err:     # a frame_id no sensor id may be
-            self.get_logger().warning(f'history not recorded: {err}')
-            return
-        now = self.get_clock().now().nanoseconds * 1e-9
-        gyro = windows.gyro_mean if windows.gyro_mean is not None else \
-            np.full((len(windows), 3), np.nan)
-        try:            # one session: the windows and the calibration, one transaction
-            record_history(self.history_path(), sensor, cal, windows.mean, windows.temp,
-                           weights, window_times(windows.t_mid, now=now), gyro,
-                           windows=len(windows))
-        except (InputError, ParameterProblem, sqlite3.Error, OSError, ValueError) as err:
-            self.get_logger().warning(f'history not recorded: {err}')
-
-    # -- model-gap check (off the service's critical path) ------------------------------
-    def _schedule_model_gap(self, held, thermal_bands):
-        if self._gap_timer is not None:
-            self.destroy_timer(self._gap_timer)
-        windows = list(self.windows) + list(held)
-        method = self._method()
-
-        def run_once():
-            self.destroy_timer(self._gap_timer)
-            self._gap_timer = None
-            self._model_gap = self.model_gap(windows, method, thermal_bands)
-            self.publish_status()
-        self._gap_timer = self.create_timer(0.01, run_once)
+            gap = future.result()
+        except (CalibrationError, InputError, ValueError, np.linalg.LinAlgError) as err:
+            gap = {'missing_effects': [], 'note': f'skipped: {err}'}
+        self._gap = (number, None)
+        self._model_gap = gap
+        if gap and gap['note'] and not gap['note'].startswith('skipped'):
+            self.get_logger().info(f'model-gap check: {gap["note"]}')
+        self.publish_status()
 
     def model_gap(self, windows, baseline, thermal_bands=None):
         """
-        Run the model-gap check on the windows (``session.gap``); return a dict for ``~/status``.
+        Run the model-gap check on the windows (``session.gap``) here; return the dict.
 
         Effects the calibration already models (the temperature tables when it has
         usable bands) are not reported as missing.
         """
         from ..session.gap import model_gap
-        gap = model_gap(WindowSet.from_windows(windows), baseline, self.params['gravity'],
-                        self.detector.rate_hz, thermal_bands, self.params['method'])
-        if gap and gap['note'] and not gap['note'].startswith('skipped'):
-            self.get_logger().info(f'model-gap check: {gap["note"]}')
-        return gap
-
-
-def _check_rate(rate_hz):
-    """Refuse a starting rate that is neither 0 (measure it) nor an IMU's."""
-    if rate_hz and rate_hz < MIN_RATE_HZ:
-        raise ParameterProblem(f"parameter 'rate_hz' must be 0 or >= {MIN_RATE_HZ:g} Hz, got "
-                               f'{rate_hz!r}')
-
-
-def _sensor_param(value):
-    """Normalise a sensor id parameter ('' stays '': the frame_id is used)."""
-    if not value:
-        return value
-    from ..dataio.sensor_id import normalise_sensor_id
-    try:
-        return normalise_sensor_id(value)
-    except InputError as err:
-        raise ParameterProblem(f"parameter 'sensor_id': {err}") from None
+        return model_gap(WindowSet.from_windows(windows), baseline, self.params['gravity'],
+                         self.detector.rate_hz, thermal_bands, self.params['method'])
 
 
 def main(args=None):

@@ -287,7 +287,7 @@ def test_refusals_leave_the_file_untouched_and_reset_clears(node_in_process, tmp
     node = node_in_process()
     feed(node, session(np.eye(3), seed=3).samples)
     assert collected(node) == 3
-    response = node.on_calibrate(Trigger.Request(), Trigger.Response())
+    response = node.calibrate_and_wait()
     assert not response.success
     assert 'refused' in response.message and 'orientations' in response.message
     assert path.read_bytes() == before and os.stat(path).st_mtime_ns == mtime
@@ -304,7 +304,7 @@ def test_refusals_leave_the_file_untouched_and_reset_clears(node_in_process, tmp
     tilted = node_in_process()
     feed(tilted, session(dirs, seed=5, hold_s=1.6).samples)
     assert collected(tilted) == 15
-    response = tilted.on_calibrate(Trigger.Request(), Trigger.Response())
+    response = tilted.calibrate_and_wait()
     assert not response.success, response.message
     assert 'predicted accuracy' in response.message and 'z axis down' in response.message
     assert tilted.progress()['last_calibration']['predicted_accuracy'] > 0.02
@@ -312,7 +312,7 @@ def test_refusals_leave_the_file_untouched_and_reset_clears(node_in_process, tmp
 
     response = node.on_reset(Trigger.Request(), Trigger.Response())
     assert response.success and len(node.windows) == 0
-    response = node.on_calibrate(Trigger.Request(), Trigger.Response())
+    response = node.calibrate_and_wait()
     assert not response.success and 'no static windows' in response.message
     assert path.read_bytes() == before
 
@@ -330,7 +330,7 @@ def test_session_start_up_burst_and_gyro_bias(node_in_process, tmp_path):
     feed(node, s.samples, gyro_bias=bias)
     assert collected(node) == 16                         # every hold
     assert abs(node.detector.rate_hz - 200.0) < 2.0
-    response = node.on_calibrate(Trigger.Request(), Trigger.Response())
+    response = node.calibrate_and_wait()
     assert response.success, response.message
     cal = load_calibration(tmp_path / 'new' / 'dir' / 'cal.yaml')
     simulated = getattr(s.sensor, 'gyro_bias', np.zeros(3))     # the simulator's own offset
@@ -374,7 +374,7 @@ def test_model_gap_check_after_the_response(node_in_process):
     means = simulate_window_means(sensor, u, 300, rng)
     node = node_in_process(method='gn', max_residual_ratio=1000.0, max_predicted_error=1.0)
     inject_windows(node, means, np.full(30, 25.0), scatter=noise)
-    response = node.on_calibrate(Trigger.Request(), Trigger.Response())
+    response = node.calibrate_and_wait()
     assert response.success, response.message
     assert 'Note' not in response.message and node._model_gap is None
     executor = SingleThreadedExecutor(context=node.context)
@@ -405,4 +405,4 @@ def test_memory_stays_bounded(node_in_process):
         assert det.retained_samples() <= det.cap + chunk + 2 * det.n + 256
     (window,) = det.finish()
     assert window['count'] > 0.99 * 360 * chunk and not seen
-    assert len(node._pending) == 0
+    assert node.intake.pending() == 0
