@@ -267,8 +267,7 @@ class GuideSession:
         :param settings: ``session.accept.Settings`` (method and gravity are the session's).
         :return: ``session.accept.Outcome``.
         """
-        from dataclasses import replace
         from ..session.accept import CollectedImu, fit_and_accept
-        settings = replace(settings, method=self.method, gravity=self.gravity)
+        settings = settings.replace(method=self.method, gravity=self.gravity)
         imu = CollectedImu(self.imu, self.window_set())
         return fit_and_accept(self.observations(), settings, imu)

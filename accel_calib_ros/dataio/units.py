@@ -27,6 +27,7 @@ import numpy as np
 from ..core.constants import G0
 from ..core.errors import InputError
 from ..core.samples import Samples
+from ..core.stats import median
 
 UNITS = ('m/s2', 'g', 'counts')
 """Units the accelerometer columns may be declared in (``--units``)."""
@@ -84,7 +85,7 @@ def median_magnitude(accel):
     a = np.asarray(accel, float).reshape(-1, 3)
     if len(a) > MAX_CHECKED_ROWS:
         a = a[::len(a) // MAX_CHECKED_ROWS + 1]
-    return float(np.median(np.linalg.norm(a, axis=1))) if len(a) else float('nan')
+    return median(np.linalg.norm(a, axis=1)) if len(a) else float('nan')
 
 
 def check_magnitude(si_accel, raw_accel=None, units='m/s2', counts_per_g=None,

@@ -14,13 +14,12 @@ A door differs only in how it spells things (:class:`Words`: an option or a
 parameter) and in its :class:`Settings`.
 """
 
-from dataclasses import dataclass, field, replace
 import math
-from typing import Optional
 
 import numpy as np
 
-from ..core.acceptance import Review, review
+from .record import Record
+from ..core.acceptance import review
 from ..core.constants import G0
 from ..core.errors import CalibrationError, InputError
 from ..core.outcomes import (DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR, json_keys,
@@ -41,8 +40,7 @@ NOT_FITTED = 'not fitted: the accelerometer calibration was refused'
 """Reason of a gyroscope or magnetometer that was not fitted because of the accelerometer."""
 
 
-@dataclass(frozen=True)
-class Words:
+class Words(Record):
     """
     How a front door spells what its user can change (an option, a parameter).
 
@@ -59,17 +57,13 @@ class Words:
     :param implausible: format of the refusal of a calibration no file may hold.
     """
 
-    limit: str = '--max-predicted-error'
-    residual_limit: str = '--max-residual-ratio'
-    unit: str = 'm/s²'
-    ml_hint: str = 'use --method ml'
-    thermal_hint: str = 'add --thermal'
-    follow_up: str = '; accel-calib diagnose DATA names what the model does not include'
-    unconverged: str = '; nothing written (--force writes it anyway)'
-    no_windows: str = 'no static windows found'
-    no_temperature: Optional[str] = None
-    implausible: str = ('the fitted calibration is implausible ({err}); are the data in '
-                        'm/s²?')
+    FIELDS = {'limit': '--max-predicted-error', 'residual_limit': '--max-residual-ratio',
+              'unit': 'm/s²', 'ml_hint': 'use --method ml', 'thermal_hint': 'add --thermal',
+              'follow_up': '; accel-calib diagnose DATA names what the model does not include',
+              'unconverged': '; nothing written (--force writes it anyway)',
+              'no_windows': 'no static windows found', 'no_temperature': None,
+              'implausible': 'the fitted calibration is implausible ({err}); are the data in '
+                             'm/s²?'}
 
 
 CLI = Words()
@@ -84,8 +78,7 @@ NODE = Words(limit='max_predicted_error', residual_limit='max_residual_ratio', u
 """The words of the calibration node (parameters)."""
 
 
-@dataclass
-class Settings:
+class Settings(Record):
     """
     What a front door asks of the fit and of its acceptance.
 
@@ -112,28 +105,16 @@ class Settings:
     :param words: how the door spells its options.
     """
 
-    method: str = 'ml'
-    gravity: float = G0
-    thermal: str = 'off'
-    band_width_c: float = 10.0
-    max_predicted_error: float = 0.02
-    max_residual_ratio: Optional[float] = 10.0
-    refuse_unphysical: bool = True
-    max_scale_error: float = 0.2
-    max_cross_axis: float = 0.1
-    max_bias_g: float = 0.25
-    allow_unconverged: bool = False
-    max_gyro_error: float = DEFAULT_MAX_GYRO_ERROR
-    max_mag_error: float = DEFAULT_MAX_MAG_ERROR
-    field_uT: Optional[float] = None
-    sensor_id: Optional[str] = None
-    input_units: Optional[dict] = None
-    source: str = ''
-    words: Words = CLI
+    FIELDS = {'method': 'ml', 'gravity': G0, 'thermal': 'off', 'band_width_c': 10.0,
+              'max_predicted_error': 0.02, 'max_residual_ratio': 10.0,
+              'refuse_unphysical': True, 'max_scale_error': 0.2, 'max_cross_axis': 0.1,
+              'max_bias_g': 0.25, 'allow_unconverged': False,
+              'max_gyro_error': DEFAULT_MAX_GYRO_ERROR, 'max_mag_error': DEFAULT_MAX_MAG_ERROR,
+              'field_uT': None, 'sensor_id': None, 'input_units': None, 'source': '',
+              'words': CLI}
 
 
-@dataclass
-class Outcome:
+class Outcome(Record):
     """
     The result of :func:`fit_and_accept`.
 
@@ -150,17 +131,9 @@ class Outcome:
     :param limit: the predicted-accuracy limit it was held to, m/s².
     """
 
-    calibration: object = None
-    verdict: Optional[Review] = None
-    refusal: Optional[str] = None
-    gyro: SensorOutcome = None
-    magnetometer: SensorOutcome = None
-    warnings: list = field(default_factory=list)
-    thermal: bool = False
-    observations: int = 0
-    carried: list = field(default_factory=list)
-    saved_to: Optional[str] = None
-    limit: float = math.nan
+    FIELDS = {'calibration': None, 'verdict': None, 'refusal': None, 'gyro': None,
+              'magnetometer': None, 'warnings': list, 'thermal': False, 'observations': 0,
+              'carried': list, 'saved_to': None, 'limit': math.nan}
 
     @property
     def accepted(self):
@@ -176,8 +149,8 @@ class Outcome:
 
     def refuse(self, reason):
         """Return this outcome refused for ``reason`` (the other sensors then not fitted)."""
-        return replace(self, refusal=reason, gyro=_not_fitted(self.gyro),
-                       magnetometer=_not_fitted(self.magnetometer))
+        return self.replace(refusal=reason, gyro=_not_fitted(self.gyro),
+                            magnetometer=_not_fitted(self.magnetometer))
 
     def sensors(self, accel_status=None):
         """Return the per-sensor status object (``fit --json`` and the node's ``sensors``)."""

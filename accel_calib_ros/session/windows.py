@@ -11,18 +11,17 @@ show, and :class:`Observations`, what :func:`~accel_calib_ros.session.accept.fit
 fits. numpy only.
 """
 
-from dataclasses import dataclass, field
 import math
-from typing import Optional
 
 import numpy as np
+
+from .record import Record
 
 DEFAULT_RATE_HZ = 100.0
 """Rate assumed for the weight cap while the sample rate is not known yet, Hz."""
 
 
-@dataclass(frozen=True)
-class Window:
+class Window(Record):
     """
     One static window: a pose held still.
 
@@ -36,14 +35,8 @@ class Window:
     :param rate_hz: sample rate inside it, Hz (NaN: the session's rate applies).
     """
 
-    mean: np.ndarray
-    scatter: np.ndarray
-    count: int
-    t_start: float
-    t_stop: float
-    temp: float = math.nan
-    gyro_mean: Optional[np.ndarray] = None
-    rate_hz: float = math.nan
+    FIELDS = {'mean': None, 'scatter': None, 'count': 0, 't_start': math.nan,
+              't_stop': math.nan, 'temp': math.nan, 'gyro_mean': None, 'rate_hz': math.nan}
 
     @property
     def t_mid(self):
@@ -74,8 +67,7 @@ class Window:
                    rate_hz=float(d.get('rate_hz', math.nan)))
 
 
-@dataclass
-class Observations:
+class Observations(Record):
     """
     What a fit is given: one row per window (or per sample in ``fit --mode samples``).
 
@@ -86,11 +78,8 @@ class Observations:
     :param gyro_means: (N, 3) rad/s (NaN rows without a gyro), or None.
     """
 
-    readings: np.ndarray
-    weights: Optional[np.ndarray] = None
-    temps: Optional[np.ndarray] = None
-    noise: Optional[np.ndarray] = None
-    gyro_means: Optional[np.ndarray] = None
+    FIELDS = {'readings': None, 'weights': None, 'temps': None, 'noise': None,
+              'gyro_means': None}
 
     def __len__(self):
         return len(self.readings)
@@ -104,12 +93,12 @@ class Observations:
         if self.noise is None or self.weights is None or not len(self.readings):
             return None
         noise = np.asarray(self.noise, float)
-        value = float(np.sqrt(np.mean(noise ** 2) / np.median(self.weights)))
+        from ..core.stats import median
+        value = float(np.sqrt(np.mean(noise ** 2) / median(self.weights)))
         return max(value, floor) if math.isfinite(value) else None
 
 
-@dataclass
-class WindowSet:
+class WindowSet(Record):
     """
     Static windows as arrays, one row per window, in the order they were held.
 
@@ -122,16 +111,10 @@ class WindowSet:
     :param rate_hz: (W,) the rate inside each window, Hz (NaN: the session's).
     """
 
-    mean: np.ndarray
-    scatter: np.ndarray
-    count: np.ndarray
-    t_start: np.ndarray
-    t_stop: np.ndarray
-    temp: np.ndarray
-    gyro_mean: Optional[np.ndarray] = None
-    rate_hz: np.ndarray = field(default=None)
+    FIELDS = {'mean': None, 'scatter': None, 'count': None, 't_start': None, 't_stop': None,
+              'temp': None, 'gyro_mean': None, 'rate_hz': None}
 
-    def __post_init__(self):
+    def _check(self):
         self.mean = np.asarray(self.mean, float).reshape(-1, 3)
         n = len(self.mean)
         self.scatter = np.asarray(self.scatter, float).reshape(n, 3)

@@ -476,3 +476,16 @@ def test_apply_uses_the_units_the_fit_recorded_and_refuses_another(capsys, sessi
         assert code == 2 and err.count('\n') == 1, err
         assert 'fitted on readings in counts at 16384 counts per g' in err
         assert not (tmp_path / 'x.csv').exists()
+
+
+def test_fit_starts_without_numpy_masked_arrays(session_csv):
+    """Issue 27: np.median, np.quantile and np.unique import numpy.ma (10 ms of start-up)."""
+    code = ('import sys\nimport numpy\nlazy = "numpy.ma" not in sys.modules\n'
+            'from accel_calib_ros.cli import main\n'
+            f'main(["fit", {str(session_csv)!r}])\n'
+            'print(sorted(m for m in ("numpy.ma", "scipy", "shutil", "json") if m in '
+            'sys.modules and (lazy or m != "numpy.ma")), file=sys.stderr)')
+    done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stderr.strip().splitlines()[-1] == '[]', done.stderr

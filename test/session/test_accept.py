@@ -160,3 +160,16 @@ def test_every_door_refuses_the_residual_in_its_own_words():
     assert '--max-residual-ratio' in cli and 'accel-calib diagnose DATA' in cli
     assert fit_and_accept(moved, Settings(max_residual_ratio=None, max_predicted_error=1.0,
                                           words=CLI)).refusal is None
+
+
+def test_records_build_like_dataclasses_for_less_start_up():
+    from accel_calib_ros.session.accept import Outcome
+    a, b = Outcome(), Outcome(refusal='x')
+    assert a.warnings == [] and a.warnings is not b.warnings        # a fresh list each
+    assert b.replace(refusal=None).refusal is None and b.refusal == 'x'
+    w = Window(np.zeros(3), np.ones(3), 5, 1.0, 2.0)
+    assert w.count == 5 and w.t_mid == 1.5 and np.isnan(w.temp) and 'count=5' in repr(w)
+    with pytest.raises(TypeError):
+        Settings(metod='ml')
+    with pytest.raises(TypeError):
+        Observations(np.zeros((1, 3)), readings=np.zeros((1, 3)))
