@@ -15,11 +15,9 @@ for a user mistake.
 """
 
 import importlib
-import json
 import os
 import signal
 import sys
-import threading
 
 from .common import (check_not_empty, expand_paths, MAX_MESSAGE, MAX_REFUSAL, message_line, Parser,
                      plain, UsageError)
@@ -51,12 +49,14 @@ def build_parser(command=None):
     Build the argparse parser of ``accel-calib``.
 
     :param command: the command about to run: only its module is imported and only its
-        options are added (None: every command's, e.g. for documentation).
+        parser is made (None or '': every command's, for the top-level help and errors).
     """
     parser = Parser(prog='accel-calib', description='the calibration science offline, on '
                     'CSV or rosbag2 recordings')
     sub = parser.add_subparsers(dest='command', required=True, parser_class=Parser)
     for name, (_, text) in COMMANDS.items():
+        if command and name != command:
+            continue            # (each parser costs its help strings' translation look-ups)
         p = sub.add_parser(name, help=text, description=text)
         if command is None or name == command:
             command_module(name).add_arguments(p)
@@ -85,6 +85,7 @@ def _on_stop_signal(signum, frame):
 
 def _stop_signals_raise():
     """Install :func:`_on_stop_signal` (main thread only); return the handlers replaced."""
+    import threading
     if threading.current_thread() is not threading.main_thread():
         return {}
     old = {}
@@ -128,6 +129,7 @@ def _main(argv):
     printed = []
 
     def out(obj):
+        import json
         print(json.dumps(plain(obj), allow_nan=False))
         printed.append(True)
 

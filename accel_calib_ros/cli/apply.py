@@ -4,6 +4,10 @@
 The acceleration always; ``gx gy gz`` with the gyro bias and, when the file has a
 ``gyro`` part, its scale and misalignment (``T⁻¹ (raw - bias)``); ``mx my mz`` with the
 ``magnetometer`` part when the file has one (else they pass through as recorded).
+
+The unit of ax, ay, az is the one the calibration records (``input_units``: the fit's
+``T`` absorbed its counts conversion, so only the same conversion is right): without unit
+options ``apply`` uses it, and it refuses (exit 2) options that say another conversion.
 """
 
 import itertools
@@ -39,8 +43,8 @@ def run(args, out):
     from ..dataio.recording import csv_writer, iter_samples
     if args.output != STDOUT:
         check_suffix(args.output, ('.csv',), 'apply -o')
-    unit_options(args)
     cal = load_calibration(args.calibration)
+    used = recorded_units(args, cal)
     is_csv = args.data.lower().endswith('.csv') and os.path.isfile(args.data)
     # Streamed: one piece of the recording in memory at a time, whatever its length.
     with Progress(os.path.getsize(args.data) if is_csv else None, 'apply',
@@ -93,7 +97,7 @@ def run(args, out):
                'gyro_bias_subtracted': gyro_subtracted,
                'gyro_corrected': _gyro_words(cal, first),
                'magnetometer_corrected': first.mag is not None and cal.magnetometer is not None,
-               'samples_outside_temperature_range': outside}
+               'samples_outside_temperature_range': outside, 'input_units': used}
     if args.json:
         out(summary)
     else:
@@ -106,6 +110,47 @@ def run(args, out):
                  if first.mag is not None else '') + ')',
               file=sys.stderr if args.output == STDOUT else sys.stdout)
     return 0
+
+
+UNIT_OPTIONS = ('units', 'counts_per_g', 'range_g')
+
+
+def recorded_units(args, cal):
+    """
+    Set the unit options of ``args`` to the calibration's ``input_units`` (or check them).
+
+    Without unit options the recorded conversion is used; options that say another one
+    are refused (counts options without a sensitivity take the recorded one). A
+    calibration that records none leaves the options as they are.
+
+    :return: the conversion used (``input_units`` form).
+    :raises UsageError: the options say another conversion than the fit's.
+    """
+    from ..dataio.units import conversion_words, input_units, same_conversion
+    given = any(getattr(args, k, None) is not None for k in UNIT_OPTIONS) or \
+        bool(getattr(args, 'counts_offset', 0.0))
+    recorded = cal.input_units
+    sensitivity = getattr(args, 'counts_per_g', None), getattr(args, 'range_g', None)
+    if recorded is not None and recorded['accel'] == 'counts' and sensitivity == (None, None) \
+            and getattr(args, 'units', None) in (None, 'counts'):
+        args.counts_per_g = recorded['counts_per_g']     # counts without their sensitivity
+    options = unit_options(args)
+    stated = input_units(options['units'], options['counts_per_g'], options['counts_offset'])
+    if recorded is None:
+        return stated
+    if not given:
+        args.units = recorded['accel']
+        args.counts_per_g = recorded.get('counts_per_g')
+        args.range_g = None
+        args.counts_offset = recorded.get('counts_offset') or 0.0
+        return dict(recorded)
+    if not same_conversion(stated, recorded):
+        raise UsageError(f'accel-calib: apply: the calibration was fitted on readings in '
+                         f'{conversion_words(recorded)}, and its T absorbed that conversion; '
+                         f'the unit options say {conversion_words(stated)}: give the same '
+                         'conversion (or no unit option: apply then uses the recorded one), '
+                         'or fit again on data converted this way')
+    return stated
 
 
 def _gyro_words(cal, samples):

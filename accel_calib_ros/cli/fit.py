@@ -1,6 +1,12 @@
-"""``accel-calib fit``: a calibration from a recording's static windows (or its samples)."""
+"""
+``accel-calib fit``: a calibration from a recording's static windows (or its samples).
 
-import math
+The recording's windows are found here (``core.windows``, outliers dropped; with
+``--history`` joined to the sensor's kept windows); the fit, its acceptance and the
+file are the session floor's, as for the node and ``guide``
+(``session.accept.fit_and_accept``, ``session.persist``).
+"""
+
 import os
 import sys
 import time
@@ -9,9 +15,9 @@ import numpy as np
 
 from .common import (add_data_args, add_window_args, check_output, GRAVITY, load_data,
                      ranged, sensor_id, STDOUT, UsageError)
-from ..core.accelerometer.fit import calibrate, METHODS
+from ..core.accelerometer.fit import METHODS
 from ..core.constants import G0
-from ..core.errors import CalibrationError, InputError
+from ..core.errors import CalibrationError
 from ..core.windows import DEFAULTS, detect_static_windows
 
 
@@ -35,6 +41,11 @@ def add_arguments(p):
                    metavar='M_S2',
                    help='refuse a fit whose predicted accuracy (RMS error at 1 g over all '
                         'orientations) is worse than this, m/s² (default %(default)s)')
+    p.add_argument('--max-residual-ratio', type=ranged(1.0, 1e6), default=10.0,
+                   metavar='RATIO',
+                   help='refuse a fit whose gravity-norm residual RMS exceeds this many times '
+                        'the error expected of a window mean from its noise (the sensor moved, '
+                        'or the model does not fit it; default %(default)s, as the node)')
     add_imu_arguments(p)
     p.add_argument('--force', action='store_true',
                    help='write the calibration even if the fit did not converge (loud '
@@ -72,24 +83,6 @@ def add_imu_arguments(p):
     g.add_argument('--field', type=ranged(1.0, 1000.0), default=None, metavar='UT',
                    help='known local field magnitude, µT (e.g. from a geomagnetic model); '
                         'default: fitted, trusting the magnetometer sensitivity on average')
-
-
-def solve_imu(args, samples, windows, cal):
-    """
-    Solve the gyroscope and magnetometer beside the accelerometer calibration ``cal``.
-
-    Each is judged on its own (``core.outcomes``): absent or insufficient data, or a fit beyond
-    its limit, leave that part out (``warn_imu`` names what is missing); the
-    accelerometer calibration is never refused for them. The calibrated parts are put
-    into ``cal``.
-
-    :returns: (gyro outcome, magnetometer outcome).
-    """
-    from ..core.outcomes import solve_gyro, solve_magnetometer, store
-    gyro = solve_gyro(samples, windows, cal, args.max_gyro_error)
-    mag = solve_magnetometer(samples, windows, cal, args.max_mag_error, args.field)
-    store(cal, gyro, mag)
-    return gyro, mag
 
 
 def warn_imu(outcomes):
@@ -167,29 +160,18 @@ def record_fit(args, cal, obs):
 
     :param args: parsed ``fit`` arguments.
     :param cal: the accepted Calibration.
-    :param obs: the observations of :func:`history_observations` (``obs.temps`` over all
-        windows fitted give the temperature range; ``obs.session`` this recording's).
+    :param obs: the observations of :func:`history_observations` (``obs.session`` holds
+        this recording's windows).
     :return: dict db, session, windows_added.
     """
-    from ..dataio.history import History
-    temps = obs.temps
-    if getattr(cal, 'temperature_range_c', None) is None and temps is not None:
-        finite = np.asarray(temps, float)
-        finite = finite[np.isfinite(finite)]
-        if len(finite):
-            cal.temperature_range_c = (float(finite.min()), float(finite.max()))
-    if getattr(cal, 'predicted_accuracy', None) is None and cal.covariance is not None:
-        from ..core.accuracy import predicted_accuracy
-        value = predicted_accuracy(cal.T, cal.covariance, cal.gravity)
-        if math.isfinite(value):
-            cal.predicted_accuracy = value
+    from ..session.persist import record_history
     s = obs.session
-    with History(s['path']) as h:
-        added = h.record_session(args.sensor, s['id'], cal, s['means'], s['temps'],
-                                 s['weights'], s['when'], s['gyro'])
+    done = record_history(s['path'], args.sensor, cal, s['means'], s['temps'], s['weights'],
+                          s['when'], s['gyro'], session_id=s['id'])
     print(f'accel-calib: history {s["path"]}: session {s["id"]} recorded for sensor '
-          f'{args.sensor} ({added} new windows and the calibration)', file=sys.stderr)
-    return {'db': s['path'], 'session': s['id'], 'windows_added': added}
+          f'{args.sensor} ({done["windows_added"]} new windows and the calibration)',
+          file=sys.stderr)
+    return done
 
 
 class _Observations:
@@ -304,97 +286,73 @@ def _print_fit(cal, summary, n_obs, mode, samples, dropped, out_path):
         print(f'wrote {out_path}')
 
 
-def _unstorable(cal):
-    """Reason the calibration file loader would refuse ``cal`` (None when it accepts it)."""
-    from ..dataio.calibration_file import calibration_from_dict, calibration_to_dict
-    try:
-        calibration_from_dict(calibration_to_dict(cal))
-    except InputError as err:
-        return f'the fitted calibration is implausible ({err}); are the data in m/s²?'
-    return None
-
-
-def _drop_implausible_gyro_bias(cal):
-    """Leave out a gyro bias no rad/s gyro has (the accelerometer fit still counts)."""
-    from ..dataio.calibration_file import MAX_GYRO_BIAS
-    biases = [cal.gyro_bias] + ([b.gyro_bias for b in cal.thermal.bands]
-                                if cal.thermal is not None else [])
-    if all(b is None or np.all(np.abs(b) <= MAX_GYRO_BIAS) for b in biases):
-        return
-    print(f'accel-calib: warning: gyro bias {np.round(cal.gyro_bias, 3).tolist()} exceeds '
-          f'{MAX_GYRO_BIAS:g} rad/s (are gx gy gz in rad/s?); not stored', file=sys.stderr)
-    cal.gyro_bias = None
-    if cal.thermal is not None:
-        for band in cal.thermal.bands:
-            band.gyro_bias = None
-
-
-def _imu_summary(gyro, mag, refusal):
+def _imu_summary(outcome):
     """Return the ``gyro_*`` / ``mag_*`` keys, the per-sensor statuses, a line per sensor."""
-    from ..core.outcomes import json_keys, sensors_dict
-    d = json_keys(gyro, mag)
+    d = outcome.json_keys()
     del d['gyro_bias']          # the fit's own key (interface.md §6), the same vector when fitted
-    d['sensors'] = sensors_dict('refused' if refusal else 'calibrated', gyro, mag, refusal)
-    d['sensor_lines'] = ['accelerometer: ' + ('calibrated' if refusal is None
-                                              else f'refused: {refusal}'),
-                         gyro.line(), mag.line()]
+    d['sensors'] = outcome.sensors()
+    d['sensor_lines'] = outcome.sensor_lines()
+    if outcome.calibration is None:        # no fit at all: the accelerometer is insufficient
+        d['sensors']['accelerometer']['status'] = 'insufficient'
+        d['sensor_lines'][0] = f'accelerometer: insufficient: {outcome.refusal}'
     return d
 
 
-def _not_fitted_summary(samples, reason):
-    """Return the IMU keys when the accelerometer could not be calibrated (nothing fitted)."""
-    from ..core.outcomes import SensorOutcome
-    why = 'not fitted: it needs the gravity directions of a calibrated accelerometer'
-    gyro = SensorOutcome('gyroscope', 'not fitted' if samples.gyro is not None else 'absent',
-                         why if samples.gyro is not None else 'the data have no gx gy gz',
-                         unit='relative')
-    mag = SensorOutcome('magnetometer', 'not fitted' if samples.mag is not None else 'absent',
-                        why if samples.mag is not None else 'the data have no mx my mz',
-                        unit='uT')
-    d = _imu_summary(gyro, mag, reason)
-    d['sensors']['accelerometer']['status'] = 'insufficient'
-    d['sensor_lines'][0] = f'accelerometer: insufficient: {reason}'
-    return d
+def settings(args):
+    """Return the session settings of the ``fit`` options."""
+    from .common import unit_options
+    from ..dataio.units import input_units
+    from ..session.accept import CLI, Settings
+    units = unit_options(args)
+    return Settings(method=args.method, gravity=args.gravity,
+                    thermal='on' if args.thermal else 'off', band_width_c=args.band_width,
+                    max_predicted_error=args.max_predicted_error,
+                    max_residual_ratio=getattr(args, 'max_residual_ratio', 10.0),
+                    refuse_unphysical=True, allow_unconverged=args.force,
+                    max_gyro_error=args.max_gyro_error, max_mag_error=args.max_mag_error,
+                    field_uT=args.field, sensor_id=getattr(args, 'sensor', None),
+                    input_units=input_units(units['units'], units['counts_per_g'],
+                                            units['counts_offset']),
+                    source=os.path.basename(args.data), words=CLI)
 
 
 def run(args, out):
     """Run ``accel-calib fit``; return the exit status."""
+    from ..session.accept import fit_and_accept, Outcome, RecordingImu
+    from ..session.windows import Observations
     if args.output == STDOUT and args.json:
         raise UsageError('accel-calib: fit -o - writes the YAML to standard output: leave out '
                          '--json')
     check_output(args.output, args.data, stdout=True)
     samples = load_data(args)
     obs = None
+    imu = RecordingImu(samples)
     try:
         obs = _observations(samples, args)
         if getattr(args, 'history', None) is not None:     # per-sensor history
             obs = history_observations(args, samples, obs)
-        cal = calibrate(obs.readings, gravity=args.gravity, method=args.method,
-                        weights=obs.weights, temps=obs.temps, thermal=args.thermal,
-                        band_width_c=args.band_width, noise_std=obs.noise,
-                        source=os.path.basename(args.data), gyro_means=obs.gyro,
-                        mean_count=obs.mean_count)
     except CalibrationError as err:
+        outcome = Outcome(refusal=str(err))
+        outcome.gyro, outcome.magnetometer = imu.not_fitted()
+    else:
+        imu.windows = getattr(obs, 'windows', None)
+        outcome = fit_and_accept(Observations(obs.readings, obs.weights, obs.temps, obs.noise,
+                                              obs.gyro), settings(args), imu)
+    cal = outcome.calibration
+    if cal is None:
         if args.json:       # still exactly one JSON object, saying why
-            imu = _not_fitted_summary(samples, str(err))
-            imu.pop('sensor_lines')
+            imu_keys = _imu_summary(outcome)
+            imu_keys.pop('sensor_lines')
             out({'method': args.method, 'mode': args.mode, 'samples': len(samples),
                  'observations': 0 if obs is None else obs.count, 'accepted': False,
-                 'refusal': str(err), 'converged': False, 'predicted_accuracy': None,
+                 'refusal': outcome.refusal, 'converged': False, 'predicted_accuracy': None,
                  'max_predicted_error': args.max_predicted_error,
                  'dropped_windows': [] if obs is None else obs.dropped, 'output': None,
-                 **imu})
-        raise
+                 **imu_keys})
+        raise CalibrationError(outcome.refusal)
     raw_resid = np.sqrt(np.mean((np.linalg.norm(obs.readings, axis=1) - args.gravity) ** 2))
-    _drop_implausible_gyro_bias(cal)
-    gyro, mag = solve_imu(args, samples, getattr(obs, 'windows', None), cal)
-    from ..core.acceptance import review
-    verdict = review(cal, args.max_predicted_error, allow_unconverged=args.force,
-                     limit_name='--max-predicted-error')
-    refusal = verdict.refusal
-    if not verdict.converged and refusal is not None:
-        refusal += '; nothing written (--force writes it anyway)'
-    refusal = refusal or _unstorable(cal)
+    refusal = outcome.refusal
+    verdict = outcome.verdict
     extra = {'mode': args.mode, 'samples': len(samples), 'residual_rms_uncalibrated': raw_resid,
              'max_predicted_error': args.max_predicted_error, 'accepted': refusal is None,
              'refusal': refusal, 'dropped_windows': obs.dropped,
@@ -406,21 +364,21 @@ def run(args, out):
         print(f'accel-calib: WARNING: the {cal.method} fit did NOT converge in '
               f'{cal.iterations} iterations; writing it only because of --force. Do not '
               'trust this calibration.', file=sys.stderr)
-    for warning in verdict.warnings if refusal is None else []:
+    for warning in outcome.warnings:
         print(f'accel-calib: warning: {warning}', file=sys.stderr)
     if refusal is None:
-        warn_imu((gyro, mag))
+        warn_imu((outcome.gyro, outcome.magnetometer))
     if refusal is None and args.output == STDOUT:
         from ..dataio.calibration_file import calibration_yaml
         sys.stdout.write(calibration_yaml(cal))
         sys.stdout.flush()
     elif refusal is None and args.output:
-        from ..dataio.calibration_file import save_calibration
-        save_calibration(cal, args.output)
+        from ..session.persist import save
+        save(outcome, args.output)
     if refusal is None and getattr(args, 'history', None) is not None:
         extra['history'] = record_fit(args, cal, obs)
     summary = _fit_summary(cal, extra)
-    summary.update(_imu_summary(gyro, mag, refusal))
+    summary.update(_imu_summary(outcome))
     if args.json:
         summary.pop('sensor_lines')
         out(summary)

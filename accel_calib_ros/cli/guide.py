@@ -31,7 +31,7 @@ from .guide_session import GuideSession
 from .guide_sources import RosSource, SerialSource, SimulatedSource
 from ..core.advice import DEFAULT_TARGET, MIN_WINDOWS, pose_name
 from ..core.constants import G0
-from ..core.errors import CalibrationError, InputError
+from ..core.errors import InputError
 
 
 def add_arguments(p):
@@ -380,49 +380,39 @@ def _rate(stamp_lists):
 def _finish(session, output, label, console, history=None, sensor=None,
             max_predicted_error=0.02):
     """
-    Fit, review (the same acceptance rule as ``fit``) and write the calibration.
+    Fit, judge and write the calibration (``session``: the acceptance of ``fit`` and the node).
 
     :return: the exit status (1 when the fit is refused: nothing written).
     """
-    try:
-        cal = session.fit(source=f'accel-calib guide ({label})')
-    except CalibrationError as err:
-        console.print(f'cannot calibrate: {err}')
+    from ..session.accept import CLI, Settings, SI_UNITS
+    from ..session.persist import record_history, save, window_times
+    outcome = session.finish(Settings(max_predicted_error=max_predicted_error,
+                                      source=f'accel-calib guide ({label})', sensor_id=sensor,
+                                      input_units=SI_UNITS, words=CLI))
+    if outcome.calibration is None:
+        console.print(f'cannot calibrate: {outcome.refusal}')
         return 1
-    from ..core.acceptance import review
-    from ..dataio.calibration_file import save_calibration
+    if not outcome.accepted:
+        console.print(f'cannot calibrate: {outcome.refusal}; nothing written')
+        return 1
+    cal = outcome.calibration
+    save(outcome, output)
+    for o in (outcome.gyro, outcome.magnetometer):
+        if o.status != 'absent':
+            console.print(o.line())
+    for line in outcome.carried:
+        console.print(line)
     adv = session.advice
-    if cal.predicted_accuracy is None:
-        cal.predicted_accuracy = adv.predicted_accuracy
-    verdict = review(cal, max_predicted_error, refuse_unphysical=True,
-                     limit_name='--max-predicted-error')
-    if verdict.refusal:
-        console.print(f'cannot calibrate: {verdict.refusal}; nothing written')
-        return 1
-    temps = session.arrays()[2]
-    temps = temps[np.isfinite(temps)]
-    if cal.temperature_range_c is None and len(temps):
-        cal.temperature_range_c = (float(temps.min()), float(temps.max()))
-    from ..core.outcomes import DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR
-    imu = session.solve_imu(cal, DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR)
-    save_calibration(cal, output)
-    for outcome in imu:
-        if outcome.status != 'absent':
-            console.print(outcome.line())
     console.print(f'enough: predicted accuracy {adv.predicted_accuracy:.4f} m/s² ≤ target '
                   f'{adv.target:.4f} m/s² after {len(session.windows)} poses')
     console.print(f'wrote calibration {output}')
     if history:             # one session: its windows and calibration, one transaction
-        from ..dataio.history import History, new_session_id
-        means, weights, temps, _ = session.arrays()
-        t_mid = np.array([w['t_mid'] for w in session.windows])
-        now = time.time()
-        run_id = new_session_id()
-        with History(history) as h:
-            h.record_session(sensor, run_id, cal, means, temps, weights,
-                             now - (t_mid.max() - t_mid), windows=len(means))
-        console.print(f'history {history}: {len(means)} windows and the calibration kept '
-                      f'for sensor {sensor} (session {run_id})')
+        windows = session.window_set()
+        done = record_history(history, sensor, cal, windows.mean, windows.temp,
+                              session.arrays()[1], window_times(windows.t_mid),
+                              windows=len(windows))
+        console.print(f'history {history}: {len(windows)} windows and the calibration kept '
+                      f'for sensor {sensor} (session {done["session"]})')
     return 0
 
 

@@ -3,7 +3,8 @@ The state of a guided session: holds, windows, advice, and the fit at the end.
 
 :class:`HoldTracker` decides sample by sample when a pose is held still and for how long;
 :class:`GuideSession` keeps the windows, the advice (``core.advice``) and the pose to ask
-for next, and fits the calibration when it is enough. When the source gives the angular
+for next, and fits the calibration when it is enough (``session.accept.fit_and_accept``,
+the acceptance of ``fit`` and the node). When the source gives the angular
 rate and the magnetic field, the session also keeps them (``core.collector``) and says
 after each window which rotation axis the moves have not turned about yet and how much
 of the sphere of field directions the magnetometer has seen (``core.outcomes``).
@@ -17,6 +18,7 @@ import numpy as np
 from ..core.advice import advise, coverage, DEFAULT_TARGET
 from ..core.collector import ImuCollector
 from ..core.constants import G0
+from ..session.windows import Window, WindowSet
 
 
 class HoldTracker:
@@ -56,13 +58,14 @@ class HoldTracker:
         """Return the noise floor now, m/s²."""
         return max(min(list(self._floors) + [self._block_min]), self.min_floor)
 
-    def update(self, t, a, temp=math.nan):
+    def update(self, t, a, temp=math.nan, gyro=None):
         """
         Add one sample; return a captured window (dict) or None.
 
         :param t: time, s.
         :param a: (3,) acceleration, m/s².
         :param temp: °C or NaN.
+        :param gyro: (3,) angular rate, rad/s, or None (the window's mean rate: the gyro bias).
         """
         a = [float(a[0]), float(a[1]), float(a[2])]
         if len(self._ring) == self.n:
@@ -93,7 +96,8 @@ class HoldTracker:
             if t - self._t0 < self.settle_s:
                 return None
             self.state, self._t0 = 'holding', t
-            self._acc = {'n': 0, 's': np.zeros(3), 's2': np.zeros(3), 'temp': [], 't0': t}
+            self._acc = {'n': 0, 's': np.zeros(3), 's2': np.zeros(3), 'temp': [], 't0': t,
+                         'g': np.zeros(3), 'g_n': 0}
         if self.state == 'holding':
             acc = self._acc
             v = np.array(a)
@@ -102,6 +106,9 @@ class HoldTracker:
             acc['s2'] += v * v
             if math.isfinite(temp):
                 acc['temp'].append(temp)
+            if gyro is not None and np.all(np.isfinite(gyro)):
+                acc['g'] += gyro
+                acc['g_n'] += 1
             self.progress = min((t - self._t0) / self.hold_s, 1.0)
             if self.progress >= 1.0 and acc['n'] >= 3:
                 self.state = 'captured'
@@ -111,7 +118,8 @@ class HoldTracker:
                 return {'mean': mean, 'scatter': scatter, 'count': n,
                         'temp': float(np.mean(acc['temp'])) if acc['temp'] else math.nan,
                         't_start': acc['t0'], 't_stop': t, 't_mid': 0.5 * (acc['t0'] + t),
-                        'rate_hz': (n - 1) / max(t - acc['t0'], 1e-9)}
+                        'rate_hz': (n - 1) / max(t - acc['t0'], 1e-9),
+                        'gyro_mean': acc['g'] / n if acc['g_n'] == n else None}
         return None
 
     def current(self):
@@ -154,19 +162,15 @@ class GuideSession:
         pose = self.advice.next_pose
         return None if pose is None else pose.gravity_direction
 
+    def window_set(self):
+        """Return the windows captured so far as a WindowSet."""
+        return WindowSet.from_windows(self.windows)
+
     def arrays(self):
         """Return (means (N, 3), weights (N,), temps (N,), noise (3,)) of the windows."""
-        w = self.windows
-        means = np.array([x['mean'] for x in w]).reshape(-1, 3)
-        counts = np.array([x['count'] for x in w], float)
-        rates = np.array([x['rate_hz'] for x in w], float)
-        weights = np.minimum(counts, self.max_weight_s * rates)
-        temps = np.array([x['temp'] for x in w], float)
-        scatter = np.array([x['scatter'] for x in w]).reshape(-1, 3)
-        dof = np.maximum(counts - 1, 0)
-        noise = np.sqrt(np.sum(dof[:, None] * scatter ** 2, axis=0) / max(dof.sum(), 1.0)) \
-            if len(w) else np.full(3, self.tracker.noise_floor)
-        return means, weights, temps, noise
+        obs = self.window_set().observations(self.max_weight_s)
+        noise = obs.noise if obs.noise is not None else np.full(3, self.tracker.noise_floor)
+        return obs.readings, obs.weights, obs.temps, noise
 
     def update(self, t, accel, temp, gyro=None, mag=None):
         """
@@ -179,8 +183,10 @@ class GuideSession:
         self._feed_imu(t, accel, temp, gyro, mag)
         new = []
         for k in range(len(t)):
-            window = self.tracker.update(t[k], accel[k], temp[k])
+            window = self.tracker.update(t[k], accel[k], temp[k],
+                                         None if gyro is None else gyro[k])
             if window is not None:
+                window = Window.from_detector(window)
                 self.windows.append(window)
                 new.append(window)
         self.samples += len(t)
@@ -217,7 +223,9 @@ class GuideSession:
         :returns: (gyro, magnetometer) ``core.outcomes.SensorOutcome``.
         """
         from ..core.outcomes import store
-        gyro, mag = self.imu.solve(self.windows, cal, max_gyro_error, max_mag_error)
+        from ..session.accept import CollectedImu, Settings
+        gyro, mag = CollectedImu(self.imu, self.window_set()).solve(
+            cal, Settings(max_gyro_error=max_gyro_error, max_mag_error=max_mag_error))
         store(cal, gyro, mag)
         return gyro, mag
 
@@ -238,8 +246,28 @@ class GuideSession:
                 'windows': len(self.windows), 'distinct': distinct, 'advice': self.advice}
 
     def fit(self, source=''):
-        """Fit the calibration to the windows; CalibrationError when it cannot."""
+        """Fit the calibration to the windows (no acceptance); CalibrationError when it cannot."""
         from ..core.accelerometer.fit import calibrate
-        means, weights, temps, noise = self.arrays()
-        return calibrate(means, gravity=self.gravity, method=self.method, weights=weights,
-                         temps=temps, noise_std=noise, source=source)
+        obs = self.observations()
+        return calibrate(obs.readings, gravity=self.gravity, method=self.method,
+                         weights=obs.weights, temps=obs.temps, noise_std=obs.noise,
+                         source=source, gyro_means=obs.gyro_means)
+
+    def observations(self):
+        """Return the session's Observations (the tracker's noise floor before any window)."""
+        obs = self.window_set().observations(self.max_weight_s)
+        if obs.noise is None:
+            obs.noise = np.full(3, self.tracker.noise_floor)
+        return obs
+
+    def finish(self, settings):
+        """
+        Fit, judge and fit the other sensors as every front door does.
+
+        :param settings: ``session.accept.Settings`` (method and gravity are the session's).
+        :return: ``session.accept.Outcome``.
+        """
+        from ..session.accept import CollectedImu, fit_and_accept
+        settings = settings.replace(method=self.method, gravity=self.gravity)
+        imu = CollectedImu(self.imu, self.window_set())
+        return fit_and_accept(self.observations(), settings, imu)

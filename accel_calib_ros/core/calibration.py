@@ -189,6 +189,10 @@ class Calibration:
     :param gyro_predicted_accuracy: RMS relative error of the corrected rate over rate
         directions uniform on the sphere (0.001 = 0.1 %), or None.
     :param magnetometer: MagnetometerPart, or None (interface.md §10).
+    :param input_units: how the fitted readings were turned into m/s², or None (not
+        recorded): ``{'accel': 'm/s2' | 'g' | 'counts'}``, with ``counts_per_g`` and
+        ``counts_offset`` for counts. ``T`` absorbs a counts conversion, so the
+        calibration is right only for readings converted the same way.
     """
 
     T: np.ndarray
@@ -216,6 +220,7 @@ class Calibration:
     gyro_T: np.ndarray = None
     gyro_predicted_accuracy: float = None
     magnetometer: MagnetometerPart = None
+    input_units: dict = None
 
     def __post_init__(self):
         self.T = np.asarray(self.T, dtype=float).reshape(3, 3)

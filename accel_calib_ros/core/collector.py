@@ -16,7 +16,7 @@ directions. :class:`ImuCollector` keeps
   spacing, which is what the ellipsoid fit needs.
 
 :meth:`ImuCollector.solve` runs ``core.outcomes.solve_gyro`` and ``solve_magnetometer`` on
-what was kept, with the node's windows (dicts with ``t_start``/``t_stop``). numpy only
+what was kept, with the session's windows (their ``t_start``/``t_stop``). numpy only
 here (the fits import scipy when they run).
 """
 
@@ -193,13 +193,14 @@ class ImuCollector:
     @staticmethod
     def windows_in(t, windows):
         """
-        Map window dicts (``t_start``, ``t_stop`` in s) to sample ranges of times ``t``.
+        Map windows to sample ranges of times ``t``.
 
+        :param windows: an object with ``t_start`` and ``t_stop`` arrays (s), or a sequence of
+            windows with those times (objects or dicts).
         :returns: an object with ``start`` and ``stop`` (int arrays) for the windows that
             lie inside ``t`` (with at least one sample).
         """
-        t_start = np.array([w['t_start'] for w in windows], float)
-        t_stop = np.array([w['t_stop'] for w in windows], float)
+        t_start, t_stop = _window_times(windows)
         start = np.searchsorted(t, t_start, side='left')
         stop = np.searchsorted(t, t_stop, side='right')
         keep = (stop > start) & (t_start >= t[0]) & (t_stop <= t[-1])
@@ -220,27 +221,72 @@ class ImuCollector:
                 'mag_coverage': coverage}
 
     # -- the fits ----------------------------------------------------------------------------
+    def snapshot(self):
+        """
+        Return a copy of what was kept, for a fit that runs while collection goes on.
+
+        :returns: :class:`ImuSnapshot` (its own arrays: the collector may change at once).
+        """
+        mags = None
+        if len(self.mag):
+            m = self.mag.copy()
+            temp = m[:, 7] if np.isfinite(m[:, 7]).all() else None
+            mags = Samples(m[:, 0], m[:, 4:7], temp, None, m[:, 1:4])
+        return ImuSnapshot(raw=self.raw_samples(), mags=mags, capacity=self.ring.capacity,
+                           ring_full=len(self.ring) == self.ring.capacity,
+                           max_mag=self.max_mag, mag_received=self.mag_received,
+                           gyro_seen=self.gyro_seen)
+
     def solve(self, windows, accel, max_gyro_error, max_mag_error, field_uT=None):
         """
         Fit the gyroscope and the magnetometer with the accelerometer calibration ``accel``.
 
-        :param windows: the node's window dicts (``t_start``, ``t_stop``).
+        :param windows: the session's windows (see :meth:`windows_in`).
+        :returns: (gyro SensorOutcome, magnetometer SensorOutcome).
+        """
+        return self.snapshot().solve(windows, accel, max_gyro_error, max_mag_error, field_uT)
+
+
+class ImuSnapshot:
+    """
+    What an :class:`ImuCollector` kept at one moment: copies, safe to fit in another thread.
+
+    :param raw: the raw samples (Samples, ``gyro`` None when it never came), or None.
+    :param mags: the magnetometer samples with their acceleration (Samples), or None.
+    :param capacity: raw samples the ring keeps (0: none kept).
+    :param ring_full: whether the ring had dropped samples already.
+    :param max_mag: magnetometer samples kept at most (0: none kept).
+    :param mag_received: magnetometer messages received.
+    :param gyro_seen: whether an angular rate ever came.
+    """
+
+    def __init__(self, raw, mags, capacity, ring_full, max_mag, mag_received, gyro_seen):
+        self.raw, self.mags = raw, mags
+        self.capacity, self.ring_full = capacity, ring_full
+        self.max_mag, self.mag_received, self.gyro_seen = max_mag, mag_received, gyro_seen
+
+    def solve(self, windows, accel, max_gyro_error, max_mag_error, field_uT=None):
+        """
+        Fit the gyroscope and the magnetometer with the accelerometer calibration ``accel``.
+
+        :param windows: the session's windows (see :meth:`ImuCollector.windows_in`).
         :returns: (gyro SensorOutcome, magnetometer SensorOutcome).
         """
         from .outcomes import absent, SensorOutcome, solve_gyro, solve_magnetometer
-        raw = self.raw_samples()
-        if self.ring.capacity <= 0:
+        raw = self.raw
+        if self.capacity <= 0:
             gyro = SensorOutcome('gyroscope', 'not collected', 'the node keeps no raw samples '
                                  '(max_gyro_samples is 0)', unit='relative')
         elif raw is None or raw.gyro is None:
             gyro = absent('gyroscope', 'imu/data_raw carries no angular velocity'
                           if raw is not None else 'no imu/data_raw received', 'relative')
         else:
-            gyro = solve_gyro(raw, self.windows_in(raw.t, windows), accel, max_gyro_error)
-            if gyro.status == 'insufficient' and len(self.ring) == self.ring.capacity:
+            gyro = solve_gyro(raw, ImuCollector.windows_in(raw.t, windows), accel,
+                              max_gyro_error)
+            if gyro.status == 'insufficient' and self.ring_full:
                 gyro.reason += (f' (only the last {raw.t[-1] - raw.t[0]:.0f} s of raw samples '
                                 'are kept: max_gyro_samples)')
-        mags = self.mag_samples()
+        mags = self.mags
         if self.max_mag <= 0:
             mag = SensorOutcome('magnetometer', 'not collected', 'the node keeps no '
                                 'magnetometer samples (max_mag_samples is 0)', unit='uT')
@@ -248,6 +294,17 @@ class ImuCollector:
             mag = absent('magnetometer', 'no imu/mag received' if not self.mag_received
                          else 'no usable imu/mag sample', 'uT')
         else:
-            mag = solve_magnetometer(mags, self.windows_in(mags.t, windows), accel,
+            mag = solve_magnetometer(mags, ImuCollector.windows_in(mags.t, windows), accel,
                                      max_mag_error, field_uT)
         return gyro, mag
+
+
+def _window_times(windows):
+    """Return (t_start, t_stop) arrays, s, of windows given as arrays or one by one."""
+    if isinstance(getattr(windows, 't_start', None), np.ndarray):
+        return (np.asarray(windows.t_start, float).reshape(-1),
+                np.asarray(windows.t_stop, float).reshape(-1))
+    rows = [(w['t_start'], w['t_stop']) if isinstance(w, dict) else (w.t_start, w.t_stop)
+            for w in windows]
+    times = np.array(rows, float).reshape(-1, 2)
+    return times[:, 0], times[:, 1]

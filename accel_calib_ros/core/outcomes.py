@@ -130,9 +130,9 @@ def solve_gyro(samples, windows=None, accel=None, max_error=DEFAULT_MAX_GYRO_ERR
     :param full_scale: gyro range, rad/s, for the clipping test (None: from the data).
     :returns: SensorOutcome with the GyroCalibration as ``result`` when fitted.
     """
-    from .gyroscope.fit import fit_gyro
     if samples.gyro is None:
         return absent('gyroscope', 'the data have no gx gy gz', 'relative')
+    from .gyroscope.fit import fit_gyro
     out = SensorOutcome('gyroscope', 'insufficient', limit=max_error, unit='relative')
     try:
         g = fit_gyro(samples, windows, accel=accel, full_scale=full_scale)

@@ -6,6 +6,7 @@ from typing import Optional
 import numpy as np
 
 from .errors import InputError
+from .stats import median
 
 MAX_ABS = {'time': 1e12, 'acceleration': 1e6, 'temperature': 1e3, 'gyro': 1e6,
            'magnetic field': 1e6}
@@ -104,7 +105,7 @@ class Samples:
         """Median sample rate in Hz (NaN with fewer than two samples)."""
         if len(self) < 2:
             return float('nan')
-        dt = np.median(np.diff(self.t))
+        dt = median(np.diff(self.t))
         return float(1.0 / dt) if dt > 0 else float('nan')
 
     def subset(self, index):

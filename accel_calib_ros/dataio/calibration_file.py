@@ -16,7 +16,9 @@ scipy-free ``core.calibration`` only.
 The optional IMU parts (interface.md §9, §10) are validated the same way: ``gyro: {T, bias,
 predicted_accuracy}`` (T well-conditioned, near identity; bias as ``gyro_bias_rad_s``)
 and ``magnetometer: {T, hard_iron_uT, R, field_uT, dip_deg, predicted_accuracy}`` (T
-well-conditioned, R a rotation, plausible field and dip). One gyro bias per file: the
+well-conditioned, R a rotation, plausible field and dip). ``input_units: {accel, counts_per_g,
+counts_offset}`` records how the fitted readings were turned into m/s² (``dataio.units``;
+``apply`` uses it and refuses another conversion). One gyro bias per file: the
 writer puts the same vector in ``gyro_bias_rad_s`` and ``gyro.bias``; the loader takes
 ``gyro.bias`` when only it is given and refuses a file whose two differ (by more than
 ``SAME_GYRO_BIAS_RAD_S``), so neither silently wins over the other.
@@ -29,6 +31,7 @@ import re
 import numpy as np
 import yaml
 
+from .units import UNITS
 from ..core.accelerometer.thermal import ThermalBand, ThermalTable
 from ..core.calibration import (Calibration, FIELD_RANGE_UT, gyro_problems, magnetometer_problems,
                                 MagnetometerPart, MAX_GYRO_BIAS, MAX_HARD_IRON_UT, METHODS,
@@ -116,7 +119,19 @@ def _to_dict(cal):
             'matrix': [_floats(row) for row in cal.covariance]}
     if cal.thermal is not None:
         d['thermal'] = cal.thermal.to_dict()
+    if cal.input_units is not None:
+        d['input_units'] = _units_to_dict(cal.input_units)
     d.update(_imu_parts_to_dict(cal))
+    return d
+
+
+def _units_to_dict(units):
+    """Return the ``input_units`` block: the unit, and the counts conversion for counts."""
+    d = {'accel': str(units.get('accel'))}
+    if d['accel'] == 'counts':
+        for key in ('counts_per_g', 'counts_offset'):
+            value = units.get(key, 0.0 if key == 'counts_offset' else None)
+            d[key] = None if value is None else float(value)   # None: the loader refuses
     return d
 
 
@@ -397,6 +412,25 @@ def _thermal(value, gravity_raw):
     return ThermalTable(width, bands)
 
 
+def _input_units(value):
+    """Parse the ``input_units`` block into a dict (``accel``; counts: their conversion)."""
+    u = _mapping(value, 'input_units')
+    unit = _string(u.get('accel'), 'input_units.accel', 10)
+    if unit not in UNITS:
+        raise _Bad(f'input_units.accel must be one of {", ".join(UNITS)}, found '
+                   f'{_found(u.get("accel"))}')
+    if unit != 'counts':
+        if u.get('counts_per_g') is not None or u.get('counts_offset') not in (None, 0, 0.0):
+            raise _Bad(f'input_units: counts_per_g and counts_offset belong to counts, not '
+                       f'{unit}')
+        return {'accel': unit}
+    return {'accel': unit,
+            'counts_per_g': _number(u.get('counts_per_g'), 'input_units.counts_per_g', 1e-3,
+                                    1e9),
+            'counts_offset': _number(u.get('counts_offset', 0.0) or 0.0,
+                                     'input_units.counts_offset', -1e9, 1e9)}
+
+
 def _calibration(d):
     d = _mapping(d, 'the file')
     if d.get('format') != FORMAT:
@@ -466,7 +500,8 @@ def _calibration(d):
         level_roll_pitch_rad=None if level is None else tuple(level),
         sensor_id=_optional(d, 'sensor_id', lambda v: _string(v, 'sensor_id', 200)),
         gyro_T=gyro_T, gyro_predicted_accuracy=gyro_accuracy,
-        magnetometer=_optional(d, 'magnetometer', _magnetometer_part))
+        magnetometer=_optional(d, 'magnetometer', _magnetometer_part),
+        input_units=_optional(d, 'input_units', _input_units))
 
 
 def calibration_from_dict(d):

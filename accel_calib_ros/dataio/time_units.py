@@ -56,13 +56,14 @@ def check_time_spacing(path, t, unit='s'):
     :raises InputError: the rate is not an IMU's.
     """
     import numpy as np
+    from ..core.stats import median
     step = np.diff(t)
     step = step[step > 0]
     if not len(step):
         return
     low, high = PLAUSIBLE_RATE_HZ
     mean_rate = (len(t) - 1) / (t[-1] - t[0])
-    step = float(np.median(step))
+    step = median(step)
     rate = 1.0 / step
     if low <= rate <= high or low <= mean_rate <= high:    # coarse stamps, or a long gap
         return

@@ -27,6 +27,7 @@ import numpy as np
 from ..core.constants import G0
 from ..core.errors import InputError
 from ..core.samples import Samples
+from ..core.stats import median
 
 UNITS = ('m/s2', 'g', 'counts')
 """Units the accelerometer columns may be declared in (``--units``)."""
@@ -84,7 +85,7 @@ def median_magnitude(accel):
     a = np.asarray(accel, float).reshape(-1, 3)
     if len(a) > MAX_CHECKED_ROWS:
         a = a[::len(a) // MAX_CHECKED_ROWS + 1]
-    return float(np.median(np.linalg.norm(a, axis=1))) if len(a) else float('nan')
+    return median(np.linalg.norm(a, axis=1)) if len(a) else float('nan')
 
 
 def check_magnitude(si_accel, raw_accel=None, units='m/s2', counts_per_g=None,
@@ -131,3 +132,35 @@ def _offset_hint(raw, offset):
     if np.all(a.min(axis=0) >= 0) and np.all(np.abs(centre - 32768.0) < 16384.0):
         return '; codes centre near 32768 (unsigned): add --counts-offset 32768'
     return ''
+
+
+# -- the record of a conversion (a calibration file's ``input_units``) ------------------
+
+def input_units(units='m/s2', counts_per_g=None, counts_offset=0.0):
+    """
+    Return the ``input_units`` record of a conversion to m/s² (:func:`to_si`'s options).
+
+    :param units: 'm/s2', 'g' or 'counts'; ``counts_per_g``, ``counts_offset``: for counts.
+    """
+    if units != 'counts':
+        return {'accel': units or 'm/s2'}
+    return {'accel': 'counts', 'counts_per_g': float(counts_per_g),
+            'counts_offset': float(counts_offset or 0.0)}
+
+
+def same_conversion(a, b):
+    """Whether two ``input_units`` records convert alike (m/s2 and g are both exact)."""
+    if 'counts' not in (a['accel'], b['accel']):
+        return True
+    if a['accel'] != b['accel']:
+        return False
+    return (abs(a['counts_per_g'] - b['counts_per_g']) <= 1e-9 * b['counts_per_g']
+            and abs((a.get('counts_offset') or 0.0) - (b.get('counts_offset') or 0.0)) <= 1e-9)
+
+
+def conversion_words(units):
+    """Say an ``input_units`` record in words (``counts at 16384 counts per g, offset 0``)."""
+    if units['accel'] != 'counts':
+        return units['accel']
+    return (f'counts at {units["counts_per_g"]:g} counts per g, offset '
+            f'{units.get("counts_offset") or 0.0:g}')

@@ -1,95 +1,57 @@
 """
 ROS 2 node ``accel_calibration``: collect static poses, advise, solve on request, save.
 
-A thin shell around :mod:`accel_calib_ros.core`:
-
-- ``imu/data_raw`` (sensor_msgs/Imu) and ``imu/temperature`` (sensor_msgs/Temperature),
-  both with the sensor-data QoS, are buffered and handed in chunks to the
-  :class:`~accel_calib_ros.core.windows.OnlineStaticDetector`, the streaming form of
-  the detector ``accel-calib fit`` uses (same parameters, same windows; the sample rate
-  is tracked all along; the gyro joins the stillness test). At most ``max_windows``
-  windows are kept.
-- after each window: one log line, the advice of :func:`core.advice.advise` (interface.md §5
-  JSON) on ``~/advice`` and the progress on ``~/status`` (both std_msgs/String JSON,
-  reliable, transient local, depth 1), and ``/diagnostics`` at 1 Hz.
-- ``~/calibrate`` (std_srvs/Trigger) fits ``method`` to the windows and, only if the
-  result is sound (converged, residual, physical, predicted accuracy at most
-  ``max_predicted_error``), writes ``calibration_file`` atomically with the gyro bias
-  of the windows; otherwise it refuses with the reason and the file stays byte-for-byte
-  as it was. The model-gap check runs after the response and is published on
-  ``~/status``. ``~/reset`` forgets the collected windows.
-- the whole IMU (interface.md §9, §10): the raw samples (bounded ring, ``max_gyro_samples``)
-  and ``imu/mag`` (sensor_msgs/MagneticField, tesla; decimated, ``max_mag_samples``)
-  are kept (:class:`core.collector.ImuCollector`); once the accelerometer calibration
-  is accepted, ``~/calibrate`` also fits the gyroscope's scale and misalignment from
-  the moves between the windows and the magnetometer, and stores each part that
-  passes its own limit (``max_gyro_error``, ``max_mag_error``). A sensor whose data
-  are absent or insufficient is reported as such (response, ``~/status``), never as a
-  failure of the accelerometer calibration.
+The live front door of the session floor; docs/calibration_node.md describes it whole.
+The samples come in on a node and thread of their own (:mod:`.calibration_intake`); every
+0.1 s they go to the streaming static-window detector and to the IMU collector, and each
+window brings the advice (``~/advice``, ``~/status``, ``/diagnostics``). ``~/calibrate``
+fits, judges and saves with the session floor (``session.accept.fit_and_accept``,
+``session.persist``) in a worker thread (:mod:`.calibration_job`) and answers when it is
+done, while the samples, ``/diagnostics`` and the parameter services go on; a second
+call meanwhile is refused with the reason. The model-gap check follows in the worker and
+lands on ``~/status``.
 """
 
 from collections import deque
 import json
 import math
 import os
+import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data, QoSProfile,
-                       ReliabilityPolicy)
-from sensor_msgs.msg import Imu, MagneticField, Temperature
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.task import Future
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from .common import (calibration_path, declare_parameters, expand_path, make_directory, Param,
+from .calibration_intake import Intake, subscribe
+from .calibration_job import Job, run_job, worker
+from .calibration_params import check_rate, METHODS, PARAMS, sensor_param  # noqa: F401
+from .common import (calibration_path, declare_parameters, expand_path, make_directory,
                      ParameterProblem, run, unsafe_output)
-from ..core.accelerometer.fit import calibrate
-from ..core.accelerometer.thermal import MIN_WINDOWS_PER_BAND
-from ..core.acceptance import review
 from ..core.advice import advise, coverage
-from ..core.collector import DEFAULT_MAX_MAG_SAMPLES, DEFAULT_MAX_SAMPLES, ImuCollector
-from ..core.constants import G0
+from ..core.collector import ImuCollector
 from ..core.errors import CalibrationError, InputError
 from ..core.finite import finite_or_none
-from ..core.outcomes import DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR
-from ..core.windows import DEFAULTS, OnlineStaticDetector, StaticWindows
-from ..dataio.calibration_file import save_calibration
+from ..core.windows import DEFAULTS, OnlineStaticDetector
+from ..session.accept import CollectedImu, NODE, Outcome, Settings, SI_UNITS
+from ..session.windows import Window, WindowSet
 
-METHODS = ('ml', 'gn', 'ml-bc')
-THERMAL_MODES = ('auto', 'on', 'off')
-MIN_WINDOW_NOISE = 0.005
-"""Floor of the expected window-mean error, m/s² (about 0.5 mg).
-
-White noise averages down to a few 1e-3 m/s² in a 2 s window, but a consumer MEMS
-accelerometer's bias does not repeat between poses better than about 0.5 mg (bias
-instability, hand and table vibration), and a 6-parameter ``gn`` fit leaves a
-residual of that order on a sensor with small cross-axis terms. Below this floor a
-residual is never a reason to refuse."""
-MIN_RATE_HZ = 1.0
-"""Lowest nonzero ``rate_hz`` accepted, Hz (an IMU below 1 Hz is a unit mistake)."""
-QUEUE_DEPTH = 200
-"""Input queue depth (samples): 1 s at 200 Hz, 0.2 s at 1 kHz."""
-CHUNK = 100
-"""Samples buffered before they go to the detector (also flushed every 0.1 s)."""
-THERMAL_EFFECTS = ('temperature_bias', 'temperature_scale')
 LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
                      reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+PROCESS_PERIOD_S = 0.1
+"""How often the samples taken in go to the detector, s."""
+COLLECT_BLOCK = 200
+"""Samples handed to the collector at a time (the magnetometer samples of their time between)."""
 
 
-def stamp_seconds(stamp):
-    """builtin_interfaces/Time as float seconds."""
-    return stamp.sec + stamp.nanosec * 1e-9
-
-
-def _accepts(function, name):
-    """Whether ``function`` takes a keyword argument ``name`` (core APIs grow)."""
-    import inspect
-    try:
-        return name in inspect.signature(function).parameters
-    except (TypeError, ValueError):
-        return False
+def hardware_id(frame_id):
+    """Return the ``/diagnostics`` hardware_id of a sensor: its IMU frame_id (one per sensor)."""
+    return frame_id or ''
 
 
 def safe_json(obj):
@@ -109,78 +71,6 @@ def safe_json(obj):
     return json.dumps(clean(obj), allow_nan=False)
 
 
-def _detector_param(name, description):
-    return Param(name, 0.0, description + f' (0 = as accel-calib fit: {DEFAULTS[name]:g} s)'
-                 if name.endswith('_s') else description
-                 + f' (0 = as accel-calib fit: {DEFAULTS[name]:g})', low=0.0, high=60.0)
-
-
-PARAMS = [
-    Param('method', 'ml', 'solver: ml (Sun & Xu, 9 parameters), gn (6 parameters) or ml-bc',
-          choices=METHODS),
-    Param('calibration_file', '',
-          "YAML file written by ~/calibrate ('' = $ROS_HOME/accel_calib_ros/"
-          'calibration.yaml); its directory is created'),
-    Param('gravity', G0, 'local gravity magnitude, m/s2', low=9.7, high=9.9),
-    Param('band_width_c', 10.0, 'width of a temperature band, degC', low=0.1, high=100.0),
-    Param('thermal', 'auto',
-          'auto: temperature-band tables when >= 2 bands are filled; on; off',
-          choices=THERMAL_MODES),
-    Param('max_residual_ratio', 10.0,
-          'refuse when the gravity-norm residual RMS exceeds this x window-mean noise',
-          low=1.0),
-    Param('max_scale_error', 0.2, 'refuse when |T_ii - 1| exceeds this', low=0.0,
-          low_open=True, high=1.0),
-    Param('max_cross_axis', 0.1, 'refuse when |T_ij| / T_ii exceeds this', low=0.0,
-          low_open=True, high=1.0),
-    Param('max_bias_g', 0.25, 'refuse when a bias exceeds this many g', low=0.0,
-          low_open=True, high=2.0),
-    Param('max_predicted_error', 0.02,
-          'refuse when the predicted accuracy (RMS error at 1 g over all orientations) '
-          'exceeds this, m/s2', low=0.0, low_open=True, high=10.0),
-    Param('target_accuracy', 0.01,
-          'predicted accuracy that is enough: the advice says "enough" below it, m/s2',
-          low=0.0, low_open=True, high=10.0),
-    _detector_param('window_s', 'moving standard deviation window, s'),
-    _detector_param('min_duration_s', 'shortest static window kept after trimming, s'),
-    _detector_param('trim_s', 'cut from each end of a still stretch, s'),
-    _detector_param('threshold_factor', 'still when moving std < factor x noise floor'),
-    Param('use_gyro', True, 'the angular rate must be still too (when the driver sends it)'),
-    Param('max_windows', 500, 'windows kept; the oldest are dropped beyond', low=10,
-          high=100000),
-    Param('max_weight_s', 5.0, 'a window weighs at most this many seconds of samples',
-          low=1e-3, high=3600.0),
-    Param('rate_hz', 0.0,
-          'sample rate to start with, Hz: 0 (measure it from the stamps; always tracked) '
-          f'or {MIN_RATE_HZ:g} .. 100000', low=0.0, high=100000.0),
-    Param('sensor_id', '',
-          "name of the sensor in the history ('' = the messages' frame_id); printable, "
-          'surrounding spaces dropped'),
-    Param('history', True,
-          'record each saved calibration and its windows in the history database'),
-    Param('history_file', '',
-          "history database ('' = history.sqlite next to calibration_file)"),
-    Param('max_gyro_samples', DEFAULT_MAX_SAMPLES,
-          'raw samples kept for the gyroscope scale/misalignment fit (36 bytes each; the '
-          'moves between the windows still kept are used; 0 = no gyro T)', low=0,
-          high=10_000_000, read_only=True),
-    Param('max_mag_samples', DEFAULT_MAX_MAG_SAMPLES,
-          'imu/mag samples kept for the magnetometer fit (decimated by 2 whenever full; '
-          '0 = no magnetometer calibration)', low=0, high=1_000_000, read_only=True),
-    Param('max_gyro_error', DEFAULT_MAX_GYRO_ERROR,
-          'store the gyro scale/misalignment only when its predicted accuracy (RMS '
-          'relative rate error over all directions) is at most this', low=0.0,
-          low_open=True, high=1.0),
-    Param('max_mag_error', DEFAULT_MAX_MAG_ERROR,
-          'store the magnetometer calibration only when its predicted accuracy (RMS field '
-          'error over all directions) is at most this, uT', low=0.0, low_open=True,
-          high=1000.0),
-    Param('field_uT', 0.0,
-          'known local magnetic field magnitude, uT (0 = fitted, trusting the '
-          'magnetometer sensitivity on average)', low=0.0, high=1000.0),
-]
-
-
 class CalibrationNode(Node):
     """Collect static windows from the raw IMU stream, advise, and calibrate on request."""
 
@@ -190,8 +80,8 @@ class CalibrationNode(Node):
         if self.params['threshold_factor'] and self.params['threshold_factor'] < 1.0:
             raise ParameterProblem("parameter 'threshold_factor' must be 0 or >= 1, got "
                                    f"{self.params['threshold_factor']!r}")
-        _check_rate(self.params['rate_hz'])
-        self.params['sensor_id'] = _sensor_param(self.params['sensor_id'])
+        check_rate(self.params['rate_hz'])
+        self.params['sensor_id'] = sensor_param(self.params['sensor_id'])
         expand_path(self.params['history_file'], 'history_file')
         self.path = calibration_path(self.params['calibration_file'])
         files = (('calibration_file', self.path), ('history_file', self.history_path()))
@@ -201,40 +91,45 @@ class CalibrationNode(Node):
                 self.get_logger().error(f'{what}: {reason}; it will not be written')
         self._make_directory(self.path)
         self.windows = deque(maxlen=self.params['max_windows'])
-        self.temperature = float('nan')
-        self.frame_id = ''
         self.detector = self._new_detector()
-        self._pending = []          # (t, ax, ay, az, gx, gy, gz, temp) not yet detected
         self._seq = 0
-        self._dropped = 0           # samples with a non-finite acceleration
         self._last_result = None    # {'success', 'message', ...} of the last ~/calibrate
         self._advice = None
         self._model_gap = None
-        self._gap_timer = None
+        self._coverage = None       # fraction of the sphere of field directions seen
         self.imu = ImuCollector(self.params['max_gyro_samples'],
                                 self.params['max_mag_samples'])
-        self._imu_result = None     # (gyro, magnetometer) SensorOutcome of ~/calibrate
-        self._coverage = None       # fraction of the sphere of field directions seen
+        self._worker = worker('accel_calibration_fit')
+        self._solving = None        # monotonic start of the ~/calibrate that runs, or None
+        self._gap = (0, None)       # (number of the check asked for, its finished future)
+        self._gap_asked = 0
+        self._gap_guard = self.create_guard_condition(self._on_model_gap)
 
         self.status_pub = self.create_publisher(String, '~/status', LATCHED)
         self.advice_pub = self.create_publisher(String, '~/advice', LATCHED)
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        # Sensor-data QoS (best effort, volatile) with a deeper queue than its 5, so a
-        # solve or a burst does not drop samples.
-        sub_qos = QoSProfile(depth=QUEUE_DEPTH, history=qos_profile_sensor_data.history,
-                             reliability=qos_profile_sensor_data.reliability,
-                             durability=qos_profile_sensor_data.durability)
-        self.create_subscription(Imu, 'imu/data_raw', self.on_imu, sub_qos)
-        self.create_subscription(Temperature, 'imu/temperature', self.on_temperature, sub_qos)
-        self.create_subscription(MagneticField, 'imu/mag', self.on_mag, sub_qos)
-        self.create_service(Trigger, '~/calibrate', self.on_calibrate)
+        # The samples in a callback group of their own: nodes.common.run spins it on the
+        # main thread with nothing else in its wait set, so nothing of this node's
+        # (services, timers, advice) delays them. One node per process: a __node:=
+        # remap names exactly one node.
+        self.intake = Intake(lambda: self.get_clock().now().nanoseconds * 1e-9)
+        self.stream_group = MutuallyExclusiveCallbackGroup()
+        subscribe(self, self.intake, self.stream_group)
+        # Re-entrant: a second call is answered (refused) while the first one runs.
+        self.create_service(Trigger, '~/calibrate', self.on_calibrate,
+                            callback_group=ReentrantCallbackGroup())
         self.create_service(Trigger, '~/reset', self.on_reset)
-        self.create_timer(0.1, self.process_pending)
+        self.create_timer(PROCESS_PERIOD_S, self.process_pending)
         self.create_timer(1.0, self.publish_diagnostics)
         self.publish_status(advice=True)
         self.get_logger().info(
             f'collecting static poses (method {self.params["method"]}, file {self.path}); '
             'hold each pose still for 2 s, follow ~/advice, then call ~/calibrate')
+
+    def destroy_node(self):
+        """Stop the worker (waiting for the work it has begun), then destroy the node."""
+        self._worker.shutdown(wait=True, cancel_futures=True)
+        return super().destroy_node()
 
     # -- parameters ------------------------------------------------------------------------
     def _detector_settings(self):
@@ -256,9 +151,9 @@ class CalibrationNode(Node):
         if changes.get('threshold_factor', 0.0) and changes['threshold_factor'] < 1.0:
             raise ParameterProblem("parameter 'threshold_factor' must be 0 or >= 1")
         if 'rate_hz' in changes:
-            _check_rate(changes['rate_hz'])
+            check_rate(changes['rate_hz'])
         if 'sensor_id' in changes:
-            self.params['sensor_id'] = _sensor_param(changes['sensor_id'])
+            self.params['sensor_id'] = sensor_param(changes['sensor_id'])
         if 'history_file' in changes:
             reason = unsafe_output(self.history_path())
             if reason:
@@ -283,83 +178,65 @@ class CalibrationNode(Node):
             self.publish_status(advice=True)
 
     # -- input -----------------------------------------------------------------------------
-    def on_temperature(self, msg):
-        """
-        Remember the latest temperature, °C.
-
-        :param msg: sensor_msgs/Temperature.
-        """
-        if math.isfinite(msg.temperature):
-            self.temperature = float(msg.temperature)
-
     def on_imu(self, msg):
-        """
-        Buffer one raw sample for the static-window detector.
-
-        :param msg: sensor_msgs/Imu with raw linear_acceleration, m/s².
-        """
-        a, w = msg.linear_acceleration, msg.angular_velocity
-        if not (math.isfinite(a.x) and math.isfinite(a.y) and math.isfinite(a.z)):
-            self._dropped += 1
-            return
-        t = stamp_seconds(msg.header.stamp)
-        if t <= 0.0:                                            # unstamped: receive time
-            t = self.get_clock().now().nanoseconds * 1e-9
-        if not self.frame_id:
-            self.frame_id = msg.header.frame_id
-        gyro_known = msg.angular_velocity_covariance[0] >= 0.0
-        self._pending.append((t, a.x, a.y, a.z) + ((w.x, w.y, w.z) if gyro_known
-                                                   else (math.nan,) * 3)
-                             + (self.temperature,))
-        if len(self._pending) >= CHUNK:
-            self.process_pending()
+        """Take one raw sample (sensor_msgs/Imu, serialised or not): :class:`Intake`."""
+        self.intake.on_imu(msg)
 
     def on_mag(self, msg):
-        """
-        Offer one magnetometer sample to the collector (tesla -> µT).
+        """Take one magnetometer sample (sensor_msgs/MagneticField, tesla)."""
+        self.intake.on_mag(msg)
 
-        :param msg: sensor_msgs/MagneticField in the accelerometer frame.
-        """
-        f = msg.magnetic_field
-        t = stamp_seconds(msg.header.stamp)
-        if t <= 0.0:                                            # unstamped: receive time
-            t = self.get_clock().now().nanoseconds * 1e-9
-        self.imu.add_mag(t, (f.x * 1e6, f.y * 1e6, f.z * 1e6))
+    def on_temperature(self, msg):
+        """Remember the latest temperature (sensor_msgs/Temperature)."""
+        self.intake.on_temperature(msg)
+
+    @property
+    def frame_id(self):
+        """Return the frame_id of the imu/data_raw messages ('' before the first)."""
+        return self.intake.frame_id
 
     def process_pending(self):
-        """Hand the buffered samples to the detector; keep and announce new windows."""
-        if not self._pending:
+        """Hand the samples taken in to the collector and the detector; announce new windows."""
+        rows, mags = self.intake.take()
+        rows = np.array(rows, float).reshape(-1, 8)
+        k = 0                   # each magnetometer sample joins the samples of its time
+        for start in range(0, len(rows), COLLECT_BLOCK):
+            block = rows[start:start + COLLECT_BLOCK]
+            while k < len(mags) and mags[k][0] <= block[-1, 0]:
+                self.imu.add_mag(mags[k][0], mags[k][1:4])
+                k += 1
+            self.imu.add_samples(block)
+        for m in mags[k:]:      # ahead of the samples: they wait for theirs
+            self.imu.add_mag(m[0], m[1:4])
+        if not len(rows):
             return
-        rows = np.array(self._pending, float)
-        self._pending = []
-        self.imu.add_samples(rows)
         gyro = rows[:, 4:7]
         windows = self.detector.feed(rows[:, 0], rows[:, 1:4], rows[:, 7],
                                      gyro if np.all(np.isfinite(gyro)) else None)
         for window in windows:
             self._add(window, publish=False)
         if windows:
-            self.publish_status(windows[-1], advice=True)
+            self.publish_status(self.windows[-1], advice=True)
 
     def _add(self, window, publish=True):
         if window is None:
             return
+        window = Window.from_detector(window)
         self.windows.append(window)
         if publish:
             self.publish_status(window, advice=True)
 
     # -- progress --------------------------------------------------------------------------
+    def window_set(self, extra=()):
+        """Return the windows kept (and ``extra`` ones) as a WindowSet."""
+        return WindowSet.from_windows(list(self.windows) + [
+            w if isinstance(w, Window) else Window.from_detector(w) for w in extra])
+
     def _arrays(self, extra=()):
-        w = list(self.windows) + list(extra)
-        means = np.array([x['mean'] for x in w], float).reshape(-1, 3)
-        counts = np.array([x['count'] for x in w], float)
-        scatter = np.array([x['scatter'] for x in w], float).reshape(-1, 3)
-        temps = np.array([x['temp'] for x in w], float)
-        cap = self.params['max_weight_s'] * (self.detector.rate_hz or 100.0)
-        weights = np.minimum(counts, cap)
-        dof = np.maximum(counts - 1, 0)
-        noise = np.sqrt(np.sum(dof[:, None] * scatter ** 2, axis=0) / max(dof.sum(), 1.0))
-        return means, weights, temps, noise
+        obs = self.window_set(extra).observations(self.params['max_weight_s'],
+                                                  self.detector.rate_hz)
+        noise = obs.noise if obs.noise is not None else np.zeros(3)
+        return obs.readings, obs.weights, obs.temps, noise
 
     def _method(self):
         return 'gn' if self.params['method'] == 'gn' else 'ml'
@@ -380,7 +257,8 @@ class CalibrationNode(Node):
         """Summarise the collection as a dict (what ``~/status`` publishes)."""
         means, weights, temps, noise = self._arrays()
         d = {'windows': len(means), 'rate_hz': finite_or_none(self.detector.rate_hz, 3),
-             'seq': self._seq, 'dropped_samples': self._dropped,
+             'seq': self._seq, 'dropped_samples': self.intake.dropped,
+             'samples_received': self.intake.received, 'calibrating': self._solving is not None,
              'coverage': {'min_eigenvalue_x3': 0.0, 'distinct_directions': 0},
              'predicted_accuracy': None, 'target_accuracy': self.params['target_accuracy'],
              'enough': False, 'next_pose': None, 'last_window': None,
@@ -423,14 +301,13 @@ class CalibrationNode(Node):
         d = self.progress(obj)
         if window is not None:
             d['last_window'] = {
-                'mean': [finite_or_none(v, 5) for v in window['mean']],
-                'count': int(window['count']),
-                'duration_s': finite_or_none(window['t_stop'] - window['t_start'], 3)}
+                'mean': [finite_or_none(v, 5) for v in window.mean],
+                'count': int(window.count), 'duration_s': finite_or_none(window.duration_s, 3)}
             pose = d['next_pose']
             acc = d['predicted_accuracy']
             self.get_logger().info(
-                f'window {d["windows"]}: mean ({", ".join(f"{v:.3f}" for v in window["mean"])})'
-                f' m/s2, {window["count"]} samples; predicted accuracy '
+                f'window {d["windows"]}: mean ({", ".join(f"{v:.3f}" for v in window.mean)})'
+                f' m/s2, {window.count} samples; predicted accuracy '
                 + (f'{acc:.4f} m/s2' if acc is not None else 'not yet')
                 + ('; enough' if d['enough'] else
                    f'; next: {pose["name"]}' if pose else ''))
@@ -442,7 +319,7 @@ class CalibrationNode(Node):
         acc = self._advice['predicted_accuracy'] if self._advice else None
         status = DiagnosticStatus(level=DiagnosticStatus.OK,
                                   name=f'{self.get_name()}: collection',
-                                  hardware_id=self.params['sensor_id'] or self.frame_id)
+                                  hardware_id=hardware_id(self.frame_id))
         status.message = f'{n} static windows' + (
             f', predicted accuracy {acc:.4f} m/s2' if acc is not None else '')
         if self.detector.rate_hz is None:
@@ -452,7 +329,9 @@ class CalibrationNode(Node):
             status.level = DiagnosticStatus.WARN
             status.message += '; last calibration refused'
         values = {'windows': n, 'rate_hz': finite_or_none(self.detector.rate_hz, 2),
-                  'dropped_non_finite_samples': self._dropped,
+                  'imu_received': self.intake.received,
+                  'dropped_non_finite_samples': self.intake.dropped,
+                  'calibrating': self._solving is not None,
                   'predicted_accuracy_m_s2': acc,
                   'target_accuracy_m_s2': self.params['target_accuracy'],
                   'calibration_file': self.path,
@@ -470,14 +349,14 @@ class CalibrationNode(Node):
     # -- services --------------------------------------------------------------------------
     def on_reset(self, request, response):
         """
-        Forget all collected windows.
+        Forget all collected windows (a calibration running goes on with its own copy).
 
         :param request: std_srvs/Trigger request (empty).
         :param response: std_srvs/Trigger response.
         :return: the response, success=True.
         """
         n = len(self.windows)
-        self._pending = []
+        self.intake.take()
         self.windows.clear()
         self.imu.clear()
         self.detector.finish()
@@ -488,191 +367,120 @@ class CalibrationNode(Node):
         self.get_logger().info(response.message)
         return response
 
-    def on_calibrate(self, request, response):
+    async def on_calibrate(self, request, response):
         """
-        Solve with the collected windows; save only a sound calibration.
+        Solve with the collected windows in the worker; save only a sound calibration.
 
-        The window being held right now counts too. The model-gap check runs after the
-        response (one-shot timer) and lands on ``~/status``.
+        The window being held right now counts too. The executor goes on while the worker
+        fits (this coroutine waits); a call while one runs is refused at once, with the
+        reason. The model-gap check runs after the response and lands on ``~/status``.
 
         :param request: std_srvs/Trigger request (empty).
         :param response: std_srvs/Trigger response.
         :return: the response: success, the key figures and the predicted accuracy, or
             the reason for refusal.
         """
+        if self._solving is not None:
+            response.success = False
+            response.message = (
+                'refused: a calibration is already running (started '
+                f'{time.monotonic() - self._solving:.1f} s ago); its result comes in the '
+                'response to that call and on ~/status')
+            self.get_logger().warning(response.message)
+            return response
+        self._solving = time.monotonic()
+        job = None
+        try:
+            job = self._job()
+            self.publish_status()
+            done = Future(executor=self.executor)
+            done.add_done_callback(lambda _: None)      # its result wakes the executor
+            self._worker.submit(run_job, job).add_done_callback(done.set_result)
+            outcome, notes = (await done).result()
+        except Exception as err:        # noqa: B902 - a bug must not take the node down
+            self.get_logger().error(f'~/calibrate failed: {type(err).__name__}: {err}')
+            outcome, notes = Outcome(refusal=f'internal error: {type(err).__name__}: {err}'), []
+            outcome.gyro, outcome.magnetometer = CollectedImu(None, None).not_fitted()
+        finally:
+            self._solving = None
+        self._report(outcome, notes, response)
+        if job is not None:
+            cal = outcome.calibration
+            self._schedule_model_gap(job.windows, None if cal is None or cal.thermal is None
+                                     else len(cal.thermal.usable))
+        return response
+
+    def calibrate_and_wait(self, timeout=300.0):
+        """
+        Run ``~/calibrate`` from this thread and wait for its response (a node not spun).
+
+        The same path as the service (the work in the worker thread); for scripts and tests
+        that drive the node's callbacks themselves.
+
+        :raises TimeoutError: no response within ``timeout`` s.
+        """
+        call = self.on_calibrate(Trigger.Request(), Trigger.Response())
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                call.send(None)
+            except StopIteration as done:
+                return done.value
+            if time.monotonic() > deadline:
+                call.close()
+                raise TimeoutError(f'~/calibrate did not answer within {timeout:g} s')
+            time.sleep(0.002)
+
+    def _job(self):
+        """Take what ~/calibrate needs, copied (the executor thread goes on changing it)."""
         self.process_pending()
         for window in self.detector.release():
             self._add(window, publish=False)
-        held = self.detector.peek()
-        accuracy = None
-        try:
-            cal, msg = self.solve(held)
-            accuracy = cal.predicted_accuracy
-            response.success, response.message = True, msg
-            self.get_logger().info(msg)
-        except CalibrationError as err:
-            cal = getattr(err, 'calibration', None)
-            accuracy = None if cal is None else cal.predicted_accuracy
-            response.success = False
-            response.message = f'refused: {err}'
-            self.get_logger().warning(response.message)
+        windows = self.window_set(self.detector.peek())
+        history = self.history_path() if self.params['history'] else None
+        return Job(windows=windows,
+                   obs=windows.observations(self.params['max_weight_s'],
+                                            self.detector.rate_hz),
+                   settings=self.settings(), imu=CollectedImu(self.imu.snapshot(), windows),
+                   path=self.path, history=history,
+                   now=self.get_clock().now().nanoseconds * 1e-9)
+
+    def _report(self, outcome, notes, response):
+        """Answer, log and publish the outcome of ~/calibrate (the executor thread)."""
+        response.success, response.message = outcome.accepted, outcome.message()
+        log = self.get_logger()
+        if outcome.accepted:
+            for warning in outcome.warnings + notes:
+                log.warning(warning)
+            for o in (outcome.gyro, outcome.magnetometer):
+                if o.status in ('insufficient', 'refused'):
+                    log.warning(f'{o.sensor} not calibrated ({o.status}): {o.reason}')
+            log.info(response.message)
+        else:
+            log.warning(response.message)
         self._last_result = {'success': response.success, 'message': response.message,
-                             'predicted_accuracy': finite_or_none(accuracy, 6),
+                             'predicted_accuracy': finite_or_none(outcome.predicted_accuracy,
+                                                                  6),
                              'max_predicted_error': self.params['max_predicted_error']}
-        self._last_result.update(self._imu_report(response.success, response.message))
+        self._last_result.update(outcome.json_keys())
+        self._last_result['sensors'] = outcome.sensors()
         self._model_gap = None
         self.publish_status()
-        self._schedule_model_gap(held, None if cal is None or cal.thermal is None
-                                 else len(cal.thermal.usable))
-        return response
 
-    def _thermal_wanted(self, temps, mode=None):
-        mode = mode or self.params['thermal']
-        if mode == 'off':
-            return False
-        finite = temps[np.isfinite(temps)]
-        if mode == 'on':
-            if not len(finite):
-                raise CalibrationError('thermal:=on but no temperature was received')
-            return True
-        bands, counts = np.unique(np.floor(finite / self.params['band_width_c']),
-                                  return_counts=True)
-        return int(np.sum(counts >= MIN_WINDOWS_PER_BAND)) >= 2
-
-    def gyro_bias(self, windows):
-        """
-        Gyroscope bias from the static windows: their gyro means weighted by samples.
-
-        :param windows: window dicts.
-        :return: (3,) rad/s, or None when no window carries the gyro.
-        """
-        rows = [(w['gyro_mean'], w['count']) for w in windows
-                if w.get('gyro_mean') is not None and np.all(np.isfinite(w['gyro_mean']))]
-        if not rows:
-            return None
-        means = np.array([r[0] for r in rows], float)
-        weights = np.array([r[1] for r in rows], float)
-        return weights @ means / weights.sum()
-
-    def solve(self, held=()):
-        """
-        Fit, check and save.
-
-        :param held: windows of the pose being held now (not yet finished).
-        :return: (Calibration, success message).
-        :raises CalibrationError: the reason for refusal (``.calibration`` attached when
-            a fit was made).
-        """
+    def settings(self):
+        """Return the session settings of the parameters now."""
         p = self.params
-        g = p['gravity']
-        windows = list(self.windows) + list(held)
-        means, weights, temps, noise = self._arrays(held)
-        if len(means) == 0:
-            raise CalibrationError('no static windows collected yet: hold the sensor still '
-                                   'in at least 10 different orientations, 2 s each')
-        thermal = self._thermal_wanted(temps)
-        extra = {}
-        gyro = [w.get('gyro_mean') for w in windows]
-        if _accepts(calibrate, 'gyro_means') and all(
-                v is not None and np.all(np.isfinite(v)) for v in gyro):
-            extra['gyro_means'] = np.array(gyro, float).reshape(-1, 3)   # per band too
-        try:
-            cal = calibrate(means, gravity=g, method=p['method'], weights=weights,
-                            temps=temps if thermal else None, thermal=thermal,
-                            band_width_c=p['band_width_c'], noise_std=noise,
-                            source=f'ros node {self.get_fully_qualified_name()}', **extra)
-        except InputError as err:
-            raise CalibrationError(str(err)) from None
-        except np.linalg.LinAlgError as err:
-            raise CalibrationError(f'the fit failed numerically ({err}): '
-                                   'add more distinct poses') from None
-        self._complete(cal, windows, temps)
-
-        def refuse(text):
-            err = CalibrationError(text)
-            err.calibration = cal
-            return err
-
-        acc = cal.predicted_accuracy
-        verdict = review(cal, p['max_predicted_error'], refuse_unphysical=True,
-                         max_scale_error=p['max_scale_error'],
-                         max_cross_axis=p['max_cross_axis'], max_bias_g=p['max_bias_g'],
-                         unit='m/s2', ml_hint="set the parameter 'method' to ml")
-        if not verdict.converged:
-            raise refuse(self._refusal(verdict))
-        expected = max(float(np.sqrt(np.mean(noise ** 2) / np.median(weights))),
-                       MIN_WINDOW_NOISE)
-        if not cal.residual_rms <= p['max_residual_ratio'] * expected:     # node only
-            raise refuse(
-                f'gravity-norm residual {cal.residual_rms:.4f} m/s2 is '
-                f'{cal.residual_rms / expected:.0f}x the expected window noise '
-                f'{expected:.4f} m/s2 (limit {p["max_residual_ratio"]:g}x): the sensor moved '
-                'during the poses or the model does not fit this sensor'
-                + ('' if thermal or not self._thermal_wanted(temps, 'auto') else
-                   '; the windows fill two temperature bands: try thermal:=auto')
-                + '; the model-gap check follows on ~/status')
-        if not verdict.accepted:
-            raise refuse(self._refusal(verdict))
-        for warning in verdict.warnings:
-            self.get_logger().warning(warning)
-        self.solve_imu(windows, cal)
-        bands = 0 if cal.thermal is None else len(cal.thermal.usable)
-        self._keep_level_trim(cal)
-        self._make_directory(self.path)
-        try:
-            save_calibration(cal, self.path)
-        except (OSError, InputError) as err:
-            raise refuse(f'cannot write {self.path}: {err}') from None
-        with np.printoptions(precision=5, suppress=True):
-            msg = (f'{cal.method} calibration from {len(means)} windows saved to '
-                   f'{self.path}: predicted accuracy {acc:.4f} m/s2 (limit '
-                   f'{p["max_predicted_error"]:g}), scale {np.round(cal.scale, 5).tolist()}, '
-                   f'bias {np.round(cal.bias, 4).tolist()} m/s2, non-orthogonality '
-                   f'{np.round(cal.nonorthogonality_deg, 3).tolist()} deg (xy, xz, yz), '
-                   f'residual {cal.residual_rms:.4f} m/s2, thermal bands {bands}')
-        if cal.gyro_bias is not None:
-            msg += f', gyro bias {np.round(cal.gyro_bias, 5).tolist()} rad/s'
-        msg += ''.join(f'. {outcome.line()}' for outcome in self._imu_result)
-        self.record_history(cal, windows, weights, temps)
-        return cal, msg
-
-    def solve_imu(self, windows, cal):
-        """
-        Fit the gyroscope and the magnetometer beside the accepted ``cal``; store what passes.
-
-        Never raises for them: an absent or insufficient sensor is reported (log, response,
-        ``~/status``) and left out of the file.
-        """
-        from ..core.outcomes import store
-        p = self.params
-        try:
-            gyro, mag = self.imu.solve(windows, cal, p['max_gyro_error'], p['max_mag_error'],
-                                       p['field_uT'] or None)
-        except (CalibrationError, InputError, ValueError, np.linalg.LinAlgError) as err:
-            from ..core.outcomes import SensorOutcome
-            gyro = SensorOutcome('gyroscope', 'insufficient', f'fit failed: {err}')
-            mag = SensorOutcome('magnetometer', 'insufficient', f'fit failed: {err}')
-        self._imu_result = (gyro, mag)
-        for outcome in (gyro, mag):
-            if outcome.status in ('insufficient', 'refused'):
-                self.get_logger().warning(f'{outcome.sensor} not calibrated '
-                                          f'({outcome.status}): {outcome.reason}')
-        store(cal, gyro, mag)
-
-    def _imu_report(self, success, message):
-        """Return the per-sensor statuses and the ``gyro_*``/``mag_*`` keys of a solve."""
-        from ..core.outcomes import json_keys, SensorOutcome, sensors_dict
-        if not success or self._imu_result is None:
-            why = 'not fitted: the accelerometer calibration was refused'
-            gyro = SensorOutcome('gyroscope', 'not fitted', why, unit='relative')
-            mag = SensorOutcome('magnetometer', 'not fitted', why, unit='uT')
-        else:
-            gyro, mag = self._imu_result
-        self._imu_result = None
-        d = json_keys(gyro, mag)
-        d['sensors'] = sensors_dict('calibrated' if success else 'refused', gyro, mag,
-                                    None if success else message)
-        return d
+        return Settings(method=p['method'], gravity=p['gravity'], thermal=p['thermal'],
+                        band_width_c=p['band_width_c'],
+                        max_predicted_error=p['max_predicted_error'],
+                        max_residual_ratio=p['max_residual_ratio'], refuse_unphysical=True,
+                        max_scale_error=p['max_scale_error'],
+                        max_cross_axis=p['max_cross_axis'], max_bias_g=p['max_bias_g'],
+                        max_gyro_error=p['max_gyro_error'], max_mag_error=p['max_mag_error'],
+                        field_uT=p['field_uT'] or None,
+                        sensor_id=p['sensor_id'] or self.frame_id or None,
+                        input_units=SI_UNITS,
+                        source=f'ros node {self.get_fully_qualified_name()}', words=NODE)
 
     def history_path(self):
         """Return the history database path ('' = next to the calibration file)."""
@@ -682,129 +490,47 @@ class CalibrationNode(Node):
         return os.path.join(os.path.dirname(os.path.abspath(calibration_path(
             self.params['calibration_file']))), 'history.sqlite')
 
-    def record_history(self, cal, windows, weights, temps):
-        """Record a saved calibration and its windows (a failure is logged, not fatal)."""
-        if not self.params['history']:
-            return
-        import sqlite3
-        from ..dataio.history import History, new_session_id
-        try:
-            sensor = _sensor_param(cal.sensor_id or 'imu') or 'imu'
-        except ParameterProblem as err:     # a frame_id no sensor id may be
-            self.get_logger().warning(f'history not recorded: {err}')
-            return
-        now = self.get_clock().now().nanoseconds * 1e-9
-        times = np.array([w['t_mid'] for w in windows], float)
-        if not np.all(np.isfinite(times) & (times > 1e9)):     # device clock: use now
-            times = np.full(len(windows), now)
-        gyro = np.array([w['gyro_mean'] if w.get('gyro_mean') is not None
-                         else np.full(3, np.nan) for w in windows], float).reshape(-1, 3)
-        try:            # one session: the windows and the calibration, one transaction
-            with History(self.history_path()) as history:
-                history.record_session(sensor, new_session_id(), cal,
-                                       np.array([w['mean'] for w in windows], float), temps,
-                                       weights, times, gyro, windows=len(windows))
-        except (InputError, ParameterProblem, sqlite3.Error, OSError, ValueError) as err:
-            self.get_logger().warning(f'history not recorded: {err}')
+    # -- model-gap check (in the worker, after the response) -----------------------------
+    def _schedule_model_gap(self, windows, thermal_bands):
+        from ..session.gap import model_gap
+        self._gap_asked += 1
+        number = self._gap_asked
+        work = self._worker.submit(model_gap, windows, self._method(), self.params['gravity'],
+                                   self.detector.rate_hz, thermal_bands, self.params['method'])
 
-    def _keep_level_trim(self, cal):
-        """Carry the level trim of the file being replaced over (the mounting is the same)."""
-        if cal.level_roll_pitch_rad is not None or not os.path.exists(self.path):
-            return
-        from ..dataio.calibration_file import load_calibration
-        try:
-            cal.level_roll_pitch_rad = load_calibration(self.path).level_roll_pitch_rad
-        except InputError:
-            pass
-
-    def _complete(self, cal, windows, temps):
-        """Fill what the core leaves to the caller: accuracy, gyro bias, range, sensor id."""
-        if cal.predicted_accuracy is None and cal.covariance is not None:
-            from ..core.accuracy import predicted_accuracy
+        def finished(future):           # the worker thread: hand it to the executor
+            self._gap = (number, future)
             try:
-                acc = float(predicted_accuracy(cal.T, cal.covariance, cal.gravity))
-            except (ValueError, np.linalg.LinAlgError):
-                acc = math.inf
-            cal.predicted_accuracy = acc if math.isfinite(acc) else None
-        if cal.gyro_bias is None:
-            cal.gyro_bias = self.gyro_bias(windows)
-        finite_t = temps[np.isfinite(temps)]
-        if cal.temperature_range_c is None and len(finite_t):
-            cal.temperature_range_c = (float(finite_t.min()), float(finite_t.max()))
-        if cal.sensor_id is None:
-            cal.sensor_id = self.params['sensor_id'] or self.frame_id or None
+                self._gap_guard.trigger()
+            except Exception:           # noqa: B902 - the node was destroyed meanwhile
+                pass
+        work.add_done_callback(finished)
 
-    def _refusal(self, verdict):
-        """Return the core's refusal (it names the poses to hold, as ``~/advice`` does)."""
-        return verdict.refusal
-
-    # -- model-gap check (off the service's critical path) ------------------------------
-    def _schedule_model_gap(self, held, thermal_bands):
-        if self._gap_timer is not None:
-            self.destroy_timer(self._gap_timer)
-        windows = list(self.windows) + list(held)
-        method = self._method()
-
-        def run_once():
-            self.destroy_timer(self._gap_timer)
-            self._gap_timer = None
-            self._model_gap = self.model_gap(windows, method, thermal_bands)
-            self.publish_status()
-        self._gap_timer = self.create_timer(0.01, run_once)
+    def _on_model_gap(self):
+        """Publish the model-gap check that just finished (the latest one asked for)."""
+        number, future = self._gap
+        if future is None or number != self._gap_asked or future.cancelled():
+            return
+        try:
+            gap = future.result()
+        except (CalibrationError, InputError, ValueError, np.linalg.LinAlgError) as err:
+            gap = {'missing_effects': [], 'note': f'skipped: {err}'}
+        self._gap = (number, None)
+        self._model_gap = gap
+        if gap and gap['note'] and not gap['note'].startswith('skipped'):
+            self.get_logger().info(f'model-gap check: {gap["note"]}')
+        self.publish_status()
 
     def model_gap(self, windows, baseline, thermal_bands=None):
         """
-        Run the model-gap check on the windows; return a dict for ``~/status``.
+        Run the model-gap check on the windows (``session.gap``) here; return the dict.
 
         Effects the calibration already models (the temperature tables when it has
         usable bands) are not reported as missing.
         """
-        from ..modelgap import diagnose_windows
-        if not windows:
-            return None
-        count = np.array([x['count'] for x in windows], int)
-        sw = StaticWindows(
-            start=np.zeros(len(windows), int), stop=count,
-            mean=np.array([x['mean'] for x in windows], float).reshape(-1, 3),
-            scatter=np.array([x['scatter'] for x in windows], float).reshape(-1, 3),
-            count=count, t_mid=np.array([x['t_mid'] for x in windows], float),
-            temp=np.array([x['temp'] for x in windows], float))
-        try:
-            report = diagnose_windows(sw, baseline, self.params['gravity'],
-                                      rate_hz=self.detector.rate_hz, replicates=0)
-        except (CalibrationError, InputError, ValueError, np.linalg.LinAlgError) as err:
-            self.get_logger().debug(f'model-gap check skipped: {err}')
-            return {'missing_effects': [], 'note': f'skipped: {err}'}
-        steps = [s for s in report.steps
-                 if not (thermal_bands and s['effect'] in THERMAL_EFFECTS)]
-        gap = {'baseline': baseline, 'missing_effects': [s['effect'] for s in steps],
-               'gap_before': finite_or_none(report.gap_before, 3),
-               'gap_after': finite_or_none(report.gap_after, 3), 'note': ''}
-        if steps:
-            details = '; '.join(f'{s["effect"]} ({s["evidence"]["magnitude"]})'
-                                for s in steps)
-            gap['note'] = (f'the data show {details}, which the {self.params["method"]} '
-                           'model does not include')
-            self.get_logger().info(f'model-gap check: {gap["note"]}')
-        return gap
-
-
-def _check_rate(rate_hz):
-    """Refuse a starting rate that is neither 0 (measure it) nor an IMU's."""
-    if rate_hz and rate_hz < MIN_RATE_HZ:
-        raise ParameterProblem(f"parameter 'rate_hz' must be 0 or >= {MIN_RATE_HZ:g} Hz, got "
-                               f'{rate_hz!r}')
-
-
-def _sensor_param(value):
-    """Normalise a sensor id parameter ('' stays '': the frame_id is used)."""
-    if not value:
-        return value
-    from ..dataio.sensor_id import normalise_sensor_id
-    try:
-        return normalise_sensor_id(value)
-    except InputError as err:
-        raise ParameterProblem(f"parameter 'sensor_id': {err}") from None
+        from ..session.gap import model_gap
+        return model_gap(WindowSet.from_windows(windows), baseline, self.params['gravity'],
+                         self.detector.rate_hz, thermal_bands, self.params['method'])
 
 
 def main(args=None):

@@ -450,3 +450,42 @@ def test_gyro_in_the_wrong_unit_does_not_cost_the_calibration(capsys, tmp_path):
     code, out, err = run(capsys, 'fit', path, '-o', calib, '--json')
     assert code == 0 and 'rad/s' in err and json.loads(out)['gyro_bias'] is None
     assert load_calibration(calib).gyro_bias is None
+
+
+def test_apply_uses_the_units_the_fit_recorded_and_refuses_another(capsys, session_csv,
+                                                                   tmp_path):
+    """Issue 27: T absorbed the fit's counts conversion; only the same one is right."""
+    raw = np.genfromtxt(session_csv, delimiter=',', names=True)
+    counts = tmp_path / 'counts.csv'
+    rows = np.column_stack([raw['t'], np.column_stack([raw['ax'], raw['ay'], raw['az']])
+                            / G * 16384.0])
+    np.savetxt(counts, rows, delimiter=',', header='t,ax,ay,az', comments='', fmt='%.6f')
+    calib = tmp_path / 'c.yaml'
+    code, _, err = run(capsys, 'fit', counts, '--counts-per-g', '16384', '-o', calib)
+    assert code == 0, err
+    assert load_calibration(calib).input_units == {'accel': 'counts', 'counts_per_g': 16384.0,
+                                                   'counts_offset': 0.0}
+    plain, same = tmp_path / 'plain.csv', tmp_path / 'same.csv'
+    code, out, err = run(capsys, 'apply', calib, counts, '-o', plain, '--json')
+    assert code == 0, err
+    assert json.loads(out)['input_units']['counts_per_g'] == 16384.0
+    assert run(capsys, 'apply', calib, counts, '-o', same, '--range', '2')[0] == 0
+    assert plain.read_bytes() == same.read_bytes()
+    for wrong in (['--counts-per-g', '8192'], ['--units', 'm/s2'], ['--counts-offset', '1']):
+        code, _, err = run(capsys, 'apply', calib, counts, '-o', tmp_path / 'x.csv', *wrong)
+        assert code == 2 and err.count('\n') == 1, err
+        assert 'fitted on readings in counts at 16384 counts per g' in err
+        assert not (tmp_path / 'x.csv').exists()
+
+
+def test_fit_starts_without_numpy_masked_arrays(session_csv):
+    """Issue 27: np.median, np.quantile and np.unique import numpy.ma (10 ms of start-up)."""
+    code = ('import sys\nimport numpy\nlazy = "numpy.ma" not in sys.modules\n'
+            'from accel_calib_ros.cli import main\n'
+            f'main(["fit", {str(session_csv)!r}])\n'
+            'print(sorted(m for m in ("numpy.ma", "scipy", "shutil", "json") if m in '
+            'sys.modules and (lazy or m != "numpy.ma")), file=sys.stderr)')
+    done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stderr.strip().splitlines()[-1] == '[]', done.stderr

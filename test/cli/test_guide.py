@@ -39,7 +39,7 @@ def test_one_window_per_held_pose_and_the_advice_follows():
         if guide.update(s.t[k:k + 37], s.accel[k:k + 37], s.temp[k:k + 37]):
             names.append(guide.advice.next_pose.name)
     assert len(guide.windows) == 8              # held 5 s each, captured once each
-    means = np.array([w['mean'] for w in guide.windows])
+    means = np.array([w.mean for w in guide.windows])
     u = means / np.linalg.norm(means, axis=1, keepdims=True)
     assert np.all(np.einsum('ij,ij->i', u, directions) > np.cos(np.radians(10)))
     assert names[-1] not in [n for _, n in CANDIDATE_POSES[:8]]
@@ -138,3 +138,17 @@ def test_guide_out_of_range_options_are_usage_errors(tmp_path, capsys, monkeypat
     err = capsys.readouterr().err
     assert words in err and len(err.strip().splitlines()) == 1
     assert (tmp_path / 'same.yaml').read_text() == 'keep me\n'
+
+
+def test_the_guide_windows_carry_the_rate_and_the_fit_its_bias():
+    from accel_calib_ros.sim.sensor import with_gyro_errors
+    from accel_calib_ros.sim.motion import random_directions
+    rng = np.random.default_rng(3)
+    sensor = with_gyro_errors(mpu9250_like(rng), np.random.default_rng(4))
+    directions = random_directions(12, rng)
+    s = simulate_session(sensor, directions, rng, hold_s=3.0, move_s=1.5).samples
+    guide = GuideSession(100.0, hold_s=2.0)
+    for k in range(0, len(s.t), 50):
+        guide.update(s.t[k:k + 50], s.accel[k:k + 50], s.temp[k:k + 50], s.gyro[k:k + 50])
+    assert len(guide.windows) == 12 and all(w.gyro_mean is not None for w in guide.windows)
+    np.testing.assert_allclose(guide.fit().gyro_bias, sensor.gyro_bias, atol=2e-3)

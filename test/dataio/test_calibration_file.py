@@ -283,3 +283,25 @@ def test_gyro_bias_per_band_and_fallback():
     np.testing.assert_allclose(out[2], -cal.gyro_bias)      # no temperature: global value
     cal.thermal = None
     np.testing.assert_allclose(cal.correct_gyro(gyro), -np.tile(cal.gyro_bias, (3, 1)))
+
+
+def test_the_file_records_the_units_the_fit_was_given():
+    """Issue 27: input_units (the counts conversion T absorbed) round-trips and is checked."""
+    cal = full_calibration()
+    for units in ({'accel': 'm/s2'}, {'accel': 'g'},
+                  {'accel': 'counts', 'counts_per_g': 16384.0, 'counts_offset': 32768.0}):
+        cal.input_units = units
+        assert calibration_from_dict(calibration_to_dict(cal)).input_units == units
+    d = calibration_to_dict(cal)
+    assert d['input_units'] == {'accel': 'counts', 'counts_per_g': 16384.0,
+                                'counts_offset': 32768.0}
+    for bad, words in (({'accel': 'furlongs'}, 'input_units.accel must be one of'),
+                       ({'accel': 'counts'}, 'input_units.counts_per_g must be a number'),
+                       ({'accel': 'counts', 'counts_per_g': -5.0}, 'counts_per_g'),
+                       ({'accel': 'm/s2', 'counts_per_g': 16384.0}, 'belong to counts'),
+                       ('m/s2', 'input_units must be a mapping')):
+        d['input_units'] = bad
+        with pytest.raises(InputError, match=words):
+            calibration_from_dict(d)
+    del d['input_units']                                   # older files: not recorded
+    assert calibration_from_dict(d).input_units is None

@@ -129,8 +129,10 @@ def test_no_two_modules_share_a_name_across_floors():
     # The same idea on two floors, kept on purpose: a command named after its subject
     # (allan, fit, health, history), a node after what it serves (calibration, correction:
     # the core holds the result and the filter, the node the shell), each front door's
-    # shared helpers (common).
-    same_idea = {'allan', 'fit', 'health', 'history', 'calibration', 'correction', 'common'}
+    # shared helpers (common), the static windows (the core detects them, the session
+    # floor collects them as typed records for every front door).
+    same_idea = {'allan', 'fit', 'health', 'history', 'calibration', 'correction', 'common',
+                 'windows'}
     shared = {n: sorted(f) for n, f in by_name.items() if len(f) > 1 and n not in same_idea}
     assert shared == {}
 

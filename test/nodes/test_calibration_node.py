@@ -8,7 +8,8 @@ parameter exits with status 2. The rest runs the node in-process, fed message by
 message through its callback (deterministic: nothing is published faster than real
 time into a best-effort queue): refusals leave the file byte-for-byte alone,
 ``~/reset``, runtime parameters, gyro bias, the model-gap check after the response,
-bounded memory.
+bounded memory. What the node decides is ``session.accept``'s, tested without ROS in
+test/session.
 """
 
 import functools
@@ -22,6 +23,7 @@ import time
 from accel_calib_ros.core.accelerometer.fit import Calibration
 from accel_calib_ros.dataio.calibration_file import load_calibration, save_calibration
 from accel_calib_ros.nodes.calibration import CalibrationNode
+from accel_calib_ros.session.windows import Window
 from accel_calib_ros.sim.motion import simulate_session, simulate_window_means
 from accel_calib_ros.sim.sensor import mpu9250_like
 import numpy as np
@@ -192,9 +194,9 @@ CANDIDATE_FACES = np.vstack([np.eye(3), -np.eye(3)])
 def inject_windows(node, means, temps, count=300, scatter=0.03):
     """Hand the node finished windows as its detector would."""
     for k, (mean, temp) in enumerate(zip(means, temps)):
-        node.windows.append({'mean': np.asarray(mean, float), 'scatter': np.full(3, scatter),
-                             'count': count, 't_mid': float(k), 't_start': k - 0.7,
-                             't_stop': k + 0.7, 'temp': float(temp)})
+        node.windows.append(Window(mean=np.asarray(mean, float), scatter=np.full(3, scatter),
+                                   count=count, t_start=k - 0.7, t_stop=k + 0.7,
+                                   temp=float(temp)))
 
 
 def directions(n, seed):
@@ -202,56 +204,6 @@ def directions(n, seed):
     rng = np.random.default_rng(seed)
     d = rng.standard_normal((n, 3))
     return d / np.linalg.norm(d, axis=1, keepdims=True)
-
-
-def test_refuses_moving_poses_and_non_physical_fits(node_in_process, tmp_path):
-    rng = np.random.default_rng(5)
-    sensor = mpu9250_like(rng, rate_hz=200.0)
-    u = directions(20, 6)
-    path = tmp_path / 'calibration.yaml'
-    # Window means far noisier than their scatter says: the sensor moved.
-    node = node_in_process()
-    means = simulate_window_means(sensor, u, 300, rng) + rng.normal(0, 0.2, (20, 3))
-    inject_windows(node, means, np.full(20, 25.0))
-    response = node.on_calibrate(Trigger.Request(), Trigger.Response())
-    assert not response.success and 'residual' in response.message, response.message
-    assert not path.exists()
-    # Readings in the wrong unit (g instead of m/s2 with a bias of 0.5 g): not physical.
-    node = node_in_process(gravity=9.80665)
-    inject_windows(node, 0.6 * 9.80665 * u + 5.0, np.full(20, 25.0), scatter=0.01)
-    response = node.on_calibrate(Trigger.Request(), Trigger.Response())
-    assert not response.success and 'not physical' in response.message, response.message
-    assert not path.exists()
-
-
-def test_thermal_tables_when_two_bands_are_filled(node_in_process, tmp_path):
-    rng = np.random.default_rng(7)
-    sensor = mpu9250_like(rng, rate_hz=200.0, effects=('temperature_bias',))
-    u = directions(40, 8)
-    temps = np.r_[np.full(20, 22.0), np.full(20, 37.0)]
-    means = simulate_window_means(sensor, u, 300, rng, temp=temps)
-    node = node_in_process()
-    inject_windows(node, means, temps)
-    save_calibration(Calibration(T=np.eye(3), bias=np.zeros(3),
-                                 level_roll_pitch_rad=(0.01, -0.02)),
-                     tmp_path / 'calibration.yaml')
-    response = node.on_calibrate(Trigger.Request(), Trigger.Response())
-    assert response.success, response.message
-    assert 'thermal bands 2' in response.message
-    # No model-gap note contradicting its own thermal fit; the level trim is kept.
-    gap = node.model_gap(list(node.windows), 'ml', thermal_bands=2)
-    assert not {'temperature_bias', 'temperature_scale'} & set(gap['missing_effects'])
-    assert load_calibration(tmp_path / 'calibration.yaml').level_roll_pitch_rad \
-        == (0.01, -0.02)
-    cal = load_calibration(tmp_path / 'calibration.yaml')
-    fresh = 9.80665 * directions(200, 9)
-    for temp in (22.0, 37.0):
-        err = cal.correct(sensor.distort(fresh, np.full(200, temp)), np.full(200, temp))
-        assert np.abs(err - fresh).max() < 0.05
-    off = node_in_process(thermal='off')
-    inject_windows(off, means, temps)
-    response = off.on_calibrate(Trigger.Request(), Trigger.Response())
-    assert not response.success and 'thermal:=auto' in response.message, response.message
 
 
 def test_config_files_match_the_declared_parameters():
@@ -335,7 +287,7 @@ def test_refusals_leave_the_file_untouched_and_reset_clears(node_in_process, tmp
     node = node_in_process()
     feed(node, session(np.eye(3), seed=3).samples)
     assert collected(node) == 3
-    response = node.on_calibrate(Trigger.Request(), Trigger.Response())
+    response = node.calibrate_and_wait()
     assert not response.success
     assert 'refused' in response.message and 'orientations' in response.message
     assert path.read_bytes() == before and os.stat(path).st_mtime_ns == mtime
@@ -352,7 +304,7 @@ def test_refusals_leave_the_file_untouched_and_reset_clears(node_in_process, tmp
     tilted = node_in_process()
     feed(tilted, session(dirs, seed=5, hold_s=1.6).samples)
     assert collected(tilted) == 15
-    response = tilted.on_calibrate(Trigger.Request(), Trigger.Response())
+    response = tilted.calibrate_and_wait()
     assert not response.success, response.message
     assert 'predicted accuracy' in response.message and 'z axis down' in response.message
     assert tilted.progress()['last_calibration']['predicted_accuracy'] > 0.02
@@ -360,7 +312,7 @@ def test_refusals_leave_the_file_untouched_and_reset_clears(node_in_process, tmp
 
     response = node.on_reset(Trigger.Request(), Trigger.Response())
     assert response.success and len(node.windows) == 0
-    response = node.on_calibrate(Trigger.Request(), Trigger.Response())
+    response = node.calibrate_and_wait()
     assert not response.success and 'no static windows' in response.message
     assert path.read_bytes() == before
 
@@ -378,7 +330,7 @@ def test_session_start_up_burst_and_gyro_bias(node_in_process, tmp_path):
     feed(node, s.samples, gyro_bias=bias)
     assert collected(node) == 16                         # every hold
     assert abs(node.detector.rate_hz - 200.0) < 2.0
-    response = node.on_calibrate(Trigger.Request(), Trigger.Response())
+    response = node.calibrate_and_wait()
     assert response.success, response.message
     cal = load_calibration(tmp_path / 'new' / 'dir' / 'cal.yaml')
     simulated = getattr(s.sensor, 'gyro_bias', np.zeros(3))     # the simulator's own offset
@@ -422,7 +374,7 @@ def test_model_gap_check_after_the_response(node_in_process):
     means = simulate_window_means(sensor, u, 300, rng)
     node = node_in_process(method='gn', max_residual_ratio=1000.0, max_predicted_error=1.0)
     inject_windows(node, means, np.full(30, 25.0), scatter=noise)
-    response = node.on_calibrate(Trigger.Request(), Trigger.Response())
+    response = node.calibrate_and_wait()
     assert response.success, response.message
     assert 'Note' not in response.message and node._model_gap is None
     executor = SingleThreadedExecutor(context=node.context)
@@ -453,4 +405,4 @@ def test_memory_stays_bounded(node_in_process):
         assert det.retained_samples() <= det.cap + chunk + 2 * det.n + 256
     (window,) = det.finish()
     assert window['count'] > 0.99 * 360 * chunk and not seen
-    assert len(node._pending) == 0
+    assert node.intake.pending() == 0

@@ -242,7 +242,7 @@ def test_calibration_node_solves_and_reports_all_three_sensors(calibration_node,
     node = calibration_node(max_mag_samples=3000)
     feed(node, imu_session.samples)
     assert len(node.imu.mag) <= 3000 and node.imu.stride > 1            # decimated, bounded
-    response = node.on_calibrate(Trigger.Request(), Trigger.Response())
+    response = node.calibrate_and_wait()
     assert response.success, response.message
     assert 'gyroscope: calibrated' in response.message
     assert 'magnetometer: calibrated' in response.message
@@ -268,7 +268,7 @@ def test_a_sensor_without_data_is_reported_never_fails_the_others(calibration_no
                                                                   imu_session):
     node = calibration_node()
     feed(node, imu_session.samples, magnetometer=False)
-    response = node.on_calibrate(Trigger.Request(), Trigger.Response())
+    response = node.calibrate_and_wait()
     assert response.success, response.message
     last = node.progress()['last_calibration']
     assert last['sensors']['gyroscope']['status'] == 'calibrated'
@@ -280,7 +280,7 @@ def test_a_sensor_without_data_is_reported_never_fails_the_others(calibration_no
     # a node that keeps no raw samples says so for the gyroscope
     other = calibration_node(max_gyro_samples=0, calibration_file=str(tmp_path / 'b.yaml'))
     feed(other, imu_session.samples)
-    response = other.on_calibrate(Trigger.Request(), Trigger.Response())
+    response = other.calibrate_and_wait()
     assert response.success, response.message
     sensors = other.progress()['last_calibration']['sensors']
     assert sensors['gyroscope']['status'] == 'not collected'
@@ -288,3 +288,20 @@ def test_a_sensor_without_data_is_reported_never_fails_the_others(calibration_no
     # ~/reset forgets the IMU buffers too
     other.on_reset(Trigger.Request(), Trigger.Response())
     assert other.imu.mag_samples() is None
+
+
+def test_an_accelerometer_only_session_keeps_the_files_other_parts(calibration_node, tmp_path,
+                                                                   imu_session):
+    """Issue 27: a new session without a magnetometer no longer drops the file's one."""
+    path = tmp_path / 'calibration.yaml'
+    save_calibration(imu_calibration(), path)
+    before = load_calibration(path)
+    node = calibration_node()
+    feed(node, imu_session.samples, magnetometer=False)
+    response = node.calibrate_and_wait()
+    assert response.success, response.message
+    assert 'magnetometer: absent' in response.message
+    assert 'magnetometer: carried forward from the file it replaces' in response.message
+    cal = load_calibration(path)
+    np.testing.assert_allclose(cal.magnetometer.hard_iron_uT, before.magnetometer.hard_iron_uT)
+    assert not np.allclose(cal.gyro_T, before.gyro_T)      # this session's own gyroscope

@@ -48,14 +48,14 @@ def test_a_calibration_file_that_is_a_fifo_is_refused_not_fatal(make, tmp_path):
     os.mkfifo(fifo)
     node = make(CalibrationNode, calibration_file=str(fifo))      # starts: logged, not fatal
     _feed_good_session(node)
-    response = node.on_calibrate(Trigger.Request(), Trigger.Response())
+    response = node.calibrate_and_wait()
     assert not response.success and 'FIFO' in response.message, response.message
     assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
     assert not (tmp_path / 'history.sqlite').exists()              # refused: no session
     good = str(tmp_path / 'ok' / 'calibration.yaml')
     (r,) = node.set_parameters([Parameter('calibration_file', value=good)])
     assert r.successful, r.reason
-    response = node.on_calibrate(Trigger.Request(), Trigger.Response())
+    response = node.calibrate_and_wait()
     assert response.success, response.message
     with History(tmp_path / 'ok' / 'history.sqlite', readonly=True) as h:
         (session,) = h.sessions()
@@ -85,7 +85,7 @@ def test_a_damaged_history_is_logged_and_the_calibration_still_saved(make, tmp_p
     before = db.read_bytes()
     node = make(CalibrationNode, calibration_file=str(tmp_path / 'calibration.yaml'))
     _feed_good_session(node)
-    response = node.on_calibrate(Trigger.Request(), Trigger.Response())
+    response = node.calibrate_and_wait()
     assert response.success, response.message
     assert (tmp_path / 'calibration.yaml').is_file() and db.read_bytes() == before
 

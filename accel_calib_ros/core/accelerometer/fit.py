@@ -25,6 +25,7 @@ from ..accuracy import predicted_accuracy
 from ..calibration import Calibration, METHODS
 from ..constants import G0
 from ..errors import CalibrationError, InputError
+from ..stats import median
 from ..windows import distinct_directions
 
 __all__ = ['Calibration', 'METHODS', 'accuracy_from_windows', 'calibrate', 'check_geometry',
@@ -71,7 +72,7 @@ def check_geometry(readings, method, weights=None, noise_std=None, sigma_floor=N
             f'only {dirs} distinct orientations among {n} observations; method {method} '
             f'needs {need_dirs}{why}: '
             + _poses_hint(readings, method, need_dirs - dirs, **hint) + other)
-    centred = readings - np.median(readings, axis=0)
+    centred = readings - median(readings, axis=0)
     spread = np.linalg.svd(centred / (np.linalg.norm(centred, axis=1).max() + 1e-300),
                            compute_uv=False)
     if spread[-1] < 1e-3 * spread[0]:
@@ -431,7 +432,7 @@ def find_outlier_windows(readings, weights, counts, noise_std, gravity=G0, temps
             break
         r = r_new
         trusted = robust_w > 0.5
-        spread = 1.4826 * np.median(r[trusted]) if trusted.any() else np.median(r)
+        spread = 1.4826 * median(r[trusted]) if trusted.any() else median(r)
         scale = np.maximum(own, spread)
         z = r / (4.685 * scale)
         new_w = np.where(z < 1.0, (1.0 - z ** 2) ** 2, 0.0)

@@ -58,6 +58,7 @@ from .moves import clipped, Moves, portion_means, window_ranges
 from ..accelerometer.fit import estimate_gyro_bias
 from ..constants import AXES
 from ..errors import CalibrationError, InputError
+from ..stats import median
 
 TURN_ADVICE = {'x': 'from y axis up to z axis up', 'y': 'from z axis up to x axis up',
                'z': 'from x axis up to y axis up'}
@@ -299,7 +300,7 @@ def fit_gyro(samples, windows=None, accel=None, bias=None, full_scale=None, edge
     g_begin = g_begin / np.linalg.norm(g_begin, axis=1, keepdims=True)
     # The moves: from the middle of window k's end portion to the middle of k+1's start.
     at_rail = clipped(gyro, full_scale)
-    median_dt = float(np.median(np.diff(t)))
+    median_dt = median(np.diff(t))
     moves, rates, steps, used = [], [], [], []
     for k in range(len(w_start) - 1):
         a = int(w_stop[k] - n_edge[k] + n_edge[k] // 2)

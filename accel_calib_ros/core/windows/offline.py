@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import CalibrationError, InputError
+from ..stats import median, quantile
 
 MAX_WEIGHT_S = 5.0
 """A window weighs at most this many seconds of samples (see StaticWindows.weights)."""
@@ -145,8 +146,8 @@ def still_mask(samples, window_s=DEFAULTS['window_s'],
         raise CalibrationError('cannot find static windows in fewer than two samples')
     n = max(int(round(window_s * rate)), 3)
     acc_std = _moving_std(samples.accel, n)
-    g = np.median(np.linalg.norm(samples.accel, axis=1))
-    floor = max(float(np.quantile(acc_std, floor_quantile)), 1e-5 * g)
+    g = median(np.linalg.norm(samples.accel, axis=1))
+    floor = max(quantile(acc_std, floor_quantile), 1e-5 * g)
     mask = acc_std <= threshold_factor * floor
     if use_gyro and samples.gyro is not None and np.all(np.isfinite(samples.gyro)):
         gyr_std = _moving_std(samples.gyro, n)
@@ -174,7 +175,7 @@ def rotation_rate(samples, accel_still, window_s=DEFAULTS['window_s']):
         return None
     n = max(int(round(window_s * samples.rate_hz)), 3)
     still = accel_still if np.any(accel_still) else np.ones(len(gyro), bool)
-    bias = np.median(gyro[still], axis=0)
+    bias = median(gyro[still], axis=0)
     return np.linalg.norm(_moving_mean(gyro - bias, n), axis=1)
 
 
@@ -284,7 +285,7 @@ def _windows_of_mask(mask, floor, samples, window_s, min_duration_s, trim_s,
     if spin is not None:
         # Turning clearly faster than the recording's own still level (its gyro noise and
         # hand tremor, or a gyro logged in other units), and than the limit.
-        level = float(np.median(spin[mask])) if mask.any() else 0.0
+        level = median(spin[mask]) if mask.any() else 0.0
         limit = max(max_rotation_rad_s, 5.0 * level)
         turning = spin > limit
         new_starts, new_stops = [], []

@@ -1,0 +1,113 @@
+"""
+The work of ``~/calibrate``, off the executor: a snapshot, then the session floor in a thread.
+
+The executor thread takes a :class:`Job` (the windows, the observations, the settings, a
+copy of what the collector kept, the paths: nothing the executor goes on changing) and
+hands it to one worker thread, which runs :func:`run_job`: fit and accept
+(``session.accept.fit_and_accept``), save (``session.persist.save``) and the history.
+The model-gap check after the response runs in the same thread. Meanwhile the samples,
+``/diagnostics`` and the parameter services go on.
+
+A thread, not a process: the fits spend their time in numpy and scipy, which release the
+global interpreter lock in their array loops, and the samples come in on a thread of their
+own that needs the lock only a few microseconds per message; measured on a 1 kHz
+three-sensor session (bench/bench_calibration_node.py), the parameter services answered
+within tens of milliseconds and every sample was taken in during the call, without the
+start-up, memory and copying of a second interpreter.
+"""
+
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from ..core.errors import CalibrationError, InputError
+from ..session.accept import fit_and_accept, Outcome
+
+
+@dataclass
+class Job:
+    """
+    Everything ``~/calibrate`` needs, copied when it was called.
+
+    :param windows: the session's WindowSet (the windows kept and the one held now).
+    :param obs: their Observations.
+    :param settings: the session Settings of the parameters.
+    :param imu: ``session.accept.CollectedImu`` over a copy of the collector.
+    :param path: the calibration file.
+    :param history: the history database, or None (not recorded).
+    :param now: the node's clock at the call, s (window times of a device clock).
+    """
+
+    windows: object
+    obs: object
+    settings: object
+    imu: object
+    path: str
+    history: Optional[str]
+    now: float
+
+
+def run_job(job):
+    """
+    Fit, judge, save and record one session (in the worker thread).
+
+    :return: (Outcome, notes): the notes are what the node logs as warnings (the history
+        could not record it).
+    """
+    from ..session.persist import save
+    try:
+        outcome = fit_and_accept(job.obs, job.settings, job.imu)
+    except InputError as err:
+        outcome = Outcome(observations=len(job.obs), refusal=str(err))
+        outcome.gyro, outcome.magnetometer = job.imu.not_fitted()
+    if not outcome.accepted:
+        return outcome, []
+    try:
+        save(outcome, job.path)
+    except (OSError, InputError, CalibrationError) as err:
+        return outcome.refuse(f'cannot write {job.path}: {err}'), []
+    note = record(job, outcome.calibration) if job.history else None
+    return outcome, [note] if note else []
+
+
+def record(job, cal):
+    """Record a saved calibration and its windows; return why not (None when recorded)."""
+    import sqlite3
+    from ..dataio.sensor_id import normalise_sensor_id
+    from ..session.persist import record_history, window_times
+    w = job.windows
+    try:
+        sensor = normalise_sensor_id(cal.sensor_id or 'imu')
+        gyro = w.gyro_mean if w.gyro_mean is not None else np.full((len(w), 3), np.nan)
+        record_history(job.history, sensor, cal, w.mean, w.temp, job.obs.weights,
+                       window_times(w.t_mid, now=job.now), gyro, windows=len(w))
+    except (InputError, sqlite3.Error, OSError, ValueError) as err:
+        return f'history not recorded: {err}'
+    return None
+
+
+def worker(name):
+    """Return the node's one worker thread, warming up (an executor of one)."""
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=name)
+    pool.submit(warm_up)
+    return pool
+
+
+def warm_up():
+    """
+    Import what the fits, the advice and the model-gap check use, in the worker.
+
+    scipy and the fits take about half a second to import; done here, the first window's
+    advice and the first ``~/calibrate`` do not hold the executor for it.
+    """
+    import importlib
+    for name in ('scipy.optimize', 'scipy.linalg', 'scipy.stats', 'scipy.spatial.transform',
+                 '..core.accelerometer.fit', '..core.information', '..core.gyroscope.fit',
+                 '..core.magnetometer.fit', '..core.outcomes', '..modelgap', '..session.gap',
+                 '..session.persist', '..dataio.history'):
+        try:
+            importlib.import_module(name, __package__)
+        except ImportError:         # an optional part missing: its first use says so
+            pass

@@ -1,0 +1,408 @@
+"""
+Fit and accept: the one decision every front door makes the same way.
+
+:func:`fit_and_accept` fits the accelerometer to the observations of a session
+(``core.accelerometer.fit.calibrate``, temperature tables when the door asks), judges
+the result (``core.acceptance.review``: convergence, predicted accuracy, physics; the
+gravity-norm residual against the noise of the windows; what a calibration file may
+hold) and, once it is accepted, fits the gyroscope and the magnetometer beside it
+(``core.outcomes``), each judged on its own. It returns an :class:`Outcome`: the
+calibration, the verdict, the refusal with the advice that fixes it, the two other
+sensors' outcomes and the message. Nothing is written here (:mod:`.persist` saves).
+
+A door differs only in how it spells things (:class:`Words`: an option or a
+parameter) and in its :class:`Settings`.
+"""
+
+import math
+
+import numpy as np
+
+from .record import Record
+from ..core.acceptance import review
+from ..core.constants import G0
+from ..core.errors import CalibrationError, InputError
+from ..core.outcomes import (DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR, json_keys,
+                             SensorOutcome, sensors_dict)
+
+THERMAL_MODES = ('auto', 'on', 'off')
+MIN_WINDOW_NOISE = 0.005
+"""Floor of the expected window-mean error, m/s² (about 0.5 mg).
+
+White noise averages down to a few 1e-3 m/s² in a 2 s window, but a consumer MEMS
+accelerometer's bias does not repeat between poses better than about 0.5 mg (bias
+instability, hand and table vibration), and a 6-parameter ``gn`` fit leaves a
+residual of that order on a sensor with small cross-axis terms. Below this floor a
+residual is never a reason to refuse."""
+SI_UNITS = {'accel': 'm/s2'}
+"""The ``input_units`` of readings that come in m/s² (sensor_msgs/Imu, the guide's sources)."""
+NOT_FITTED = 'not fitted: the accelerometer calibration was refused'
+"""Reason of a gyroscope or magnetometer that was not fitted because of the accelerometer."""
+
+
+class Words(Record):
+    """
+    How a front door spells what its user can change (an option, a parameter).
+
+    :param limit: the name of the predicted-accuracy limit.
+    :param residual_limit: the name of the residual-ratio limit.
+    :param unit: the spelling of m/s².
+    :param ml_hint: how to ask for the 9-parameter method.
+    :param thermal_hint: how to switch the temperature tables on.
+    :param follow_up: added to a residual refusal (where to learn what the model misses).
+    :param unconverged: added to a refusal of a fit that did not converge.
+    :param no_windows: the refusal when nothing was collected.
+    :param no_temperature: the refusal of temperature tables without temperatures
+        (None: the fit's own words).
+    :param implausible: format of the refusal of a calibration no file may hold.
+    """
+
+    FIELDS = {'limit': '--max-predicted-error', 'residual_limit': '--max-residual-ratio',
+              'unit': 'm/s²', 'ml_hint': 'use --method ml', 'thermal_hint': 'add --thermal',
+              'follow_up': '; accel-calib diagnose DATA names what the model does not include',
+              'unconverged': '; nothing written (--force writes it anyway)',
+              'no_windows': 'no static windows found', 'no_temperature': None,
+              'implausible': 'the fitted calibration is implausible ({err}); are the data in '
+                             'm/s²?'}
+
+
+CLI = Words()
+"""The words of ``accel-calib fit`` and ``guide``."""
+NODE = Words(limit='max_predicted_error', residual_limit='max_residual_ratio', unit='m/s2',
+             ml_hint="set the parameter 'method' to ml", thermal_hint='try thermal:=auto',
+             follow_up='; the model-gap check follows on ~/status', unconverged='',
+             no_windows='no static windows collected yet: hold the sensor still in at '
+                        'least 10 different orientations, 2 s each',
+             no_temperature='thermal:=on but no temperature was received',
+             implausible='refusing to write the calibration: {err}')
+"""The words of the calibration node (parameters)."""
+
+
+class Settings(Record):
+    """
+    What a front door asks of the fit and of its acceptance.
+
+    :param method: 'ml', 'ml-bc', 'gn' or 'ellipsoid'.
+    :param gravity: local gravity, m/s².
+    :param thermal: 'on', 'off' or 'auto' (temperature-band tables when at least two
+        bands hold ``MIN_WINDOWS_PER_BAND`` windows).
+    :param band_width_c: width of a temperature band, °C.
+    :param max_predicted_error: acceptance limit of the predicted accuracy, m/s².
+    :param max_residual_ratio: refuse when the gravity-norm residual RMS exceeds this
+        many times the error expected of a window mean (None: not checked).
+    :param refuse_unphysical: refuse a fit no accelerometer in m/s² has (else a warning).
+    :param max_scale_error: physical limit of ``|T_ii - 1|``.
+    :param max_cross_axis: physical limit of ``|T_ij| / T_ii``.
+    :param max_bias_g: physical limit of a bias, g.
+    :param allow_unconverged: accept a fit that did not converge (``--force``).
+    :param max_gyro_error: the gyroscope's limit (relative); ``max_mag_error`` (µT).
+    :param field_uT: known field magnitude, µT, or None (fitted).
+    :param sensor_id: the sensor's name, written into the calibration (None: none).
+    :param input_units: how the readings were turned into m/s² (``accel``: 'm/s2', 'g' or
+        'counts' with ``counts_per_g`` and ``counts_offset``), written into the
+        calibration: it is right only for readings converted the same way.
+    :param source: where the data came from (written into the calibration).
+    :param words: how the door spells its options.
+    """
+
+    FIELDS = {'method': 'ml', 'gravity': G0, 'thermal': 'off', 'band_width_c': 10.0,
+              'max_predicted_error': 0.02, 'max_residual_ratio': 10.0,
+              'refuse_unphysical': True, 'max_scale_error': 0.2, 'max_cross_axis': 0.1,
+              'max_bias_g': 0.25, 'allow_unconverged': False,
+              'max_gyro_error': DEFAULT_MAX_GYRO_ERROR, 'max_mag_error': DEFAULT_MAX_MAG_ERROR,
+              'field_uT': None, 'sensor_id': None, 'input_units': None, 'source': '',
+              'words': CLI}
+
+
+class Outcome(Record):
+    """
+    The result of :func:`fit_and_accept`.
+
+    :param calibration: the fitted Calibration (with the gyroscope and magnetometer parts
+        that passed, when accepted), or None when no fit could be made.
+    :param verdict: the review of the fit (None without a fit).
+    :param refusal: why it may not be used (None: accepted), with the advice that fixes it.
+    :param gyro: the gyroscope's SensorOutcome; ``magnetometer``: the magnetometer's.
+    :param warnings: what the user should know about an accepted calibration.
+    :param thermal: whether temperature tables were fitted.
+    :param observations: the observations the fit was given.
+    :param carried: what the file being replaced carried forward (:mod:`.persist`).
+    :param saved_to: where it was written (:mod:`.persist`), or None.
+    :param limit: the predicted-accuracy limit it was held to, m/s².
+    """
+
+    FIELDS = {'calibration': None, 'verdict': None, 'refusal': None, 'gyro': None,
+              'magnetometer': None, 'warnings': list, 'thermal': False, 'observations': 0,
+              'carried': list, 'saved_to': None, 'limit': math.nan}
+
+    @property
+    def accepted(self):
+        """Whether the calibration may be used (and written)."""
+        return self.refusal is None and self.calibration is not None
+
+    @property
+    def predicted_accuracy(self):
+        """Return the accelerometer's predicted accuracy, m/s² (None without a fit)."""
+        cal = self.calibration
+        acc = None if cal is None else cal.predicted_accuracy
+        return acc if acc is not None and math.isfinite(acc) else None
+
+    def refuse(self, reason):
+        """Return this outcome refused for ``reason`` (the other sensors then not fitted)."""
+        return self.replace(refusal=reason, gyro=_not_fitted(self.gyro),
+                            magnetometer=_not_fitted(self.magnetometer))
+
+    def sensors(self, accel_status=None):
+        """Return the per-sensor status object (``fit --json`` and the node's ``sensors``)."""
+        status = accel_status or ('calibrated' if self.accepted else 'refused')
+        return sensors_dict(status, self.gyro, self.magnetometer, self.refusal)
+
+    def json_keys(self):
+        """Return the flat ``gyro_*`` / ``mag_*`` keys (interface.md §9, §10)."""
+        return json_keys(self.gyro if self.accepted else None,
+                         self.magnetometer if self.accepted else None)
+
+    def sensor_lines(self):
+        """Return one line per sensor for a person."""
+        return ['accelerometer: ' + ('calibrated' if self.accepted
+                                     else f'refused: {self.refusal}'),
+                self.gyro.line(), self.magnetometer.line()] + list(self.carried)
+
+    def message(self):
+        """Return the one-line summary (the node's ``~/calibrate`` response)."""
+        if not self.accepted:
+            return f'refused: {self.refusal}'
+        cal = self.calibration
+        bands = 0 if cal.thermal is None else len(cal.thermal.usable)
+        unit = 'm/s2'
+        with np.printoptions(precision=5, suppress=True):
+            msg = (f'{cal.method} calibration from {self.observations} windows '
+                   + (f'saved to {self.saved_to}' if self.saved_to else 'accepted')
+                   + f': predicted accuracy {self.predicted_accuracy or math.nan:.4f} {unit} '
+                   f'(limit {self.limit:g}), scale {np.round(cal.scale, 5).tolist()}, '
+                   f'bias {np.round(cal.bias, 4).tolist()} {unit}, non-orthogonality '
+                   f'{np.round(cal.nonorthogonality_deg, 3).tolist()} deg (xy, xz, yz), '
+                   f'residual {cal.residual_rms:.4f} {unit}, thermal bands {bands}')
+        if cal.gyro_bias is not None:
+            msg += f', gyro bias {np.round(cal.gyro_bias, 5).tolist()} rad/s'
+        msg += ''.join(f'. {o.line()}' for o in (self.gyro, self.magnetometer))
+        msg += ''.join(f'. {line}' for line in self.carried)
+        return msg
+
+
+def _not_fitted(outcome):
+    """Return the outcome of a sensor whose accelerometer calibration was refused."""
+    if outcome is None or outcome.status in ('absent', 'not collected'):
+        return outcome
+    return SensorOutcome(outcome.sensor, 'not fitted', NOT_FITTED, unit=outcome.unit)
+
+
+# -- the other two sensors ---------------------------------------------------------------
+
+class RecordingImu:
+    """
+    The gyroscope and magnetometer of one recording (``accel-calib fit``).
+
+    :param samples: the recording (``gyro`` rad/s, ``mag`` µT, or None).
+    :param windows: its static windows (sample index ranges), or None to detect them.
+    """
+
+    def __init__(self, samples, windows=None):
+        self.samples, self.windows = samples, windows
+
+    def solve(self, cal, settings):
+        """Fit both beside the accelerometer calibration ``cal``; return (gyro, magnetometer)."""
+        from ..core.outcomes import solve_gyro, solve_magnetometer
+        return (solve_gyro(self.samples, self.windows, cal, settings.max_gyro_error),
+                solve_magnetometer(self.samples, self.windows, cal, settings.max_mag_error,
+                                   settings.field_uT))
+
+    def not_fitted(self):
+        """Return (gyro, magnetometer) when no accelerometer calibration was accepted."""
+        s = self.samples
+        return (_unfitted('gyroscope', s.gyro is not None, 'the data have no gx gy gz',
+                          'relative'),
+                _unfitted('magnetometer', s.mag is not None, 'the data have no mx my mz',
+                          'uT'))
+
+
+class CollectedImu:
+    """
+    The gyroscope and magnetometer a live session kept (``core.collector.ImuCollector``).
+
+    :param collector: the ImuCollector (or None: neither was collected).
+    :param windows: the session's WindowSet (their times place them in the samples).
+    """
+
+    def __init__(self, collector, windows):
+        self.collector, self.windows = collector, windows
+
+    def solve(self, cal, settings):
+        """Fit both beside ``cal``; a failing fit is reported, never raised."""
+        if self.collector is None:
+            return self.not_fitted()
+        try:
+            return self.collector.solve(self.windows, cal, settings.max_gyro_error,
+                                        settings.max_mag_error, settings.field_uT)
+        except (CalibrationError, InputError, ValueError, np.linalg.LinAlgError) as err:
+            return (SensorOutcome('gyroscope', 'insufficient', f'fit failed: {err}',
+                                  unit='relative'),
+                    SensorOutcome('magnetometer', 'insufficient', f'fit failed: {err}',
+                                  unit='uT'))
+
+    def not_fitted(self):
+        """Return (gyro, magnetometer) when no accelerometer calibration was accepted."""
+        c = self.collector
+        return (_unfitted('gyroscope', c is not None and c.gyro_seen,
+                          'no angular velocity received', 'relative'),
+                _unfitted('magnetometer', c is not None and c.mag_received > 0,
+                          'no magnetometer sample received', 'uT'))
+
+
+def _unfitted(sensor, present, absent_reason, unit):
+    if not present:
+        return SensorOutcome(sensor, 'absent', absent_reason, unit=unit)
+    return SensorOutcome(sensor, 'not fitted', NOT_FITTED, unit=unit)
+
+
+# -- the decision --------------------------------------------------------------------------
+
+def thermal_wanted(mode, temps, band_width_c, words=CLI):
+    """
+    Decide whether to fit temperature tables.
+
+    :param mode: 'on', 'off' or 'auto' (when two bands hold enough windows each).
+    :param temps: (N,) °C or None.
+    :raises InputError: 'on' without any temperature (in the door's words, when it has them).
+    """
+    from ..core.accelerometer.thermal import MIN_WINDOWS_PER_BAND
+    if mode == 'off':
+        return False
+    finite = np.zeros(0) if temps is None else np.asarray(temps, float)
+    finite = finite[np.isfinite(finite)]
+    if mode == 'on':
+        if not len(finite) and words.no_temperature:
+            raise InputError(words.no_temperature)
+        return True
+    _, counts = np.unique(np.floor(finite / band_width_c), return_counts=True)
+    return int(np.sum(counts >= MIN_WINDOWS_PER_BAND)) >= 2
+
+
+def fit_and_accept(obs, settings, imu=None):
+    """
+    Fit the accelerometer, judge it and, once accepted, fit the other sensors beside it.
+
+    :param obs: :class:`~.windows.Observations` of the session.
+    :param settings: :class:`Settings` of the door.
+    :param imu: :class:`RecordingImu` or :class:`CollectedImu` (None: no other sensor).
+    :return: :class:`Outcome` (``refusal`` says why when it is not accepted).
+    :raises InputError: the input cannot be fitted as given (unknown method, non-finite
+        observations, temperature tables without temperatures): the door's usage error.
+    """
+    from ..core.accelerometer.fit import calibrate
+    s, words = settings, settings.words
+    out = Outcome(observations=len(obs), limit=s.max_predicted_error)
+    out.gyro, out.magnetometer = imu.not_fitted() if imu is not None else (
+        _unfitted('gyroscope', False, 'no gyroscope data', 'relative'),
+        _unfitted('magnetometer', False, 'no magnetometer data', 'uT'))
+    if not len(obs):
+        out.refusal = words.no_windows
+        return out
+    out.thermal = thermal_wanted(s.thermal, obs.temps, s.band_width_c, words)
+    try:
+        cal = calibrate(obs.readings, gravity=s.gravity, method=s.method, weights=obs.weights,
+                        temps=obs.temps, thermal=out.thermal, band_width_c=s.band_width_c,
+                        noise_std=obs.noise, source=s.source, gyro_means=obs.gyro_means)
+    except CalibrationError as err:
+        out.refusal = str(err)
+        return out
+    except np.linalg.LinAlgError as err:
+        out.refusal = f'the fit failed numerically ({err}): add more distinct poses'
+        return out
+    _complete(cal, obs, s)
+    out.calibration = cal
+    out.warnings += _drop_implausible_gyro_bias(cal)
+    out.verdict = verdict = review(
+        cal, s.max_predicted_error, allow_unconverged=s.allow_unconverged,
+        refuse_unphysical=s.refuse_unphysical, max_scale_error=s.max_scale_error,
+        max_cross_axis=s.max_cross_axis, max_bias_g=s.max_bias_g, limit_name=words.limit,
+        unit=words.unit, ml_hint=words.ml_hint)
+    refusal = None
+    if not verdict.converged and verdict.refusal:
+        refusal = verdict.refusal + words.unconverged
+    else:
+        refusal = _residual_refusal(cal, obs, s, out.thermal) or verdict.refusal
+    refusal = refusal or _unstorable(cal, words)
+    if refusal is not None:
+        out.refusal = refusal
+        return out
+    out.warnings += verdict.warnings
+    if imu is not None:
+        from ..core.outcomes import store
+        out.gyro, out.magnetometer = imu.solve(cal, s)
+        store(cal, out.gyro, out.magnetometer)
+    return out
+
+
+def _complete(cal, obs, s):
+    """Fill what the fit leaves to the door: accuracy, sensor, units, temperature range."""
+    if cal.predicted_accuracy is None and cal.covariance is not None:
+        from ..core.accuracy import predicted_accuracy
+        try:
+            acc = float(predicted_accuracy(cal.T, cal.covariance, cal.gravity))
+        except (ValueError, np.linalg.LinAlgError):
+            acc = math.inf
+        cal.predicted_accuracy = acc if math.isfinite(acc) else None
+    if cal.temperature_range_c is None and obs.temps is not None:
+        finite = np.asarray(obs.temps, float)
+        finite = finite[np.isfinite(finite)]
+        if len(finite):
+            cal.temperature_range_c = (float(finite.min()), float(finite.max()))
+    if cal.sensor_id is None and s.sensor_id:
+        cal.sensor_id = s.sensor_id
+    if s.input_units is not None:
+        cal.input_units = dict(s.input_units)
+
+
+def _residual_refusal(cal, obs, s, thermal):
+    """Refuse a residual far beyond the noise of the windows: the sensor moved, or the model."""
+    if s.max_residual_ratio is None:
+        return None
+    expected = obs.expected_window_noise(MIN_WINDOW_NOISE)
+    if expected is None or cal.residual_rms <= s.max_residual_ratio * expected:
+        return None
+    words = s.words
+    hint = ''
+    if not thermal and thermal_wanted('auto', obs.temps, s.band_width_c):
+        hint = f'; the windows fill two temperature bands: {words.thermal_hint}'
+    return (f'gravity-norm residual {cal.residual_rms:.4f} {words.unit} is '
+            f'{cal.residual_rms / expected:.0f}x the expected window noise {expected:.4f} '
+            f'{words.unit} (limit {s.max_residual_ratio:g}x, {words.residual_limit}): the sensor '
+            f'moved during the poses or the model does not fit this sensor{hint}'
+            f'{words.follow_up}')
+
+
+def _drop_implausible_gyro_bias(cal):
+    """Leave out a gyro bias no gyro in rad/s has (the accelerometer fit still counts)."""
+    from ..core.calibration import MAX_GYRO_BIAS
+    biases = [cal.gyro_bias] + ([b.gyro_bias for b in cal.thermal.bands]
+                                if cal.thermal is not None else [])
+    if all(b is None or np.all(np.abs(b) <= MAX_GYRO_BIAS) for b in biases):
+        return []
+    warning = (f'gyro bias {np.round(cal.gyro_bias, 3).tolist()} exceeds {MAX_GYRO_BIAS:g} '
+               'rad/s (are gx gy gz in rad/s?); not stored')
+    cal.gyro_bias = None
+    if cal.thermal is not None:
+        for band in cal.thermal.bands:
+            band.gyro_bias = None
+    return [warning]
+
+
+def _unstorable(cal, words):
+    """Return why no calibration file may hold ``cal`` (None when one may)."""
+    from ..dataio.calibration_file import calibration_from_dict, calibration_to_dict
+    try:
+        calibration_from_dict(calibration_to_dict(cal))
+    except InputError as err:
+        return words.implausible.format(err=err)
+    return None
