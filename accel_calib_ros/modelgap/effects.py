@@ -221,26 +221,37 @@ class BiasDrift(PerAxisEffect):
         return f'{60000 * value / gravity:+.3f} mg/min'
 
 
-def lagged(time, temp, tau):
+def start_slope(time, temp):
+    """Return the temperature's rate at the start of the session, °C/s (first three windows)."""
+    k = min(3, len(time))
+    if k < 2 or np.ptp(time[:k]) <= 0:
+        return 0.0
+    return float(np.polyfit(time[:k] - time[0], temp[:k], 1)[0])
+
+
+def lagged(time, temp, tau, behind=0.0):
     """
     Return a first-order lag of a temperature sampled at ``time``, same shape.
 
     The temperature is taken as linear between the samples (window mid times); the
-    lagged one starts at the first temperature (in equilibrium) and follows
-    tau dθ_lag/dt = θ - θ_lag exactly on each linear piece:
+    lagged one starts ``behind`` °C below the first temperature (0: in equilibrium) and
+    follows tau dθ_lag/dt = θ - θ_lag exactly on each linear piece:
     θ_lag(t1) = θ1 - s tau + (θ_lag(t0) - θ0 + s tau) exp(-(t1 - t0) / tau), s the slope.
+    ``tau`` and ``behind`` may be arrays of the same shape (B,): the result is then (B, N).
 
     :param time: (N,) s, increasing. :param temp: (N,) °C. :param tau: time constant, s.
     """
-    out = np.empty(len(temp))
-    out[0] = temp[0]
+    tau = np.asarray(tau, float)
+    behind = np.broadcast_to(np.asarray(behind, float), tau.shape)
+    out = np.empty(tau.shape + (len(temp),))
+    out[..., 0] = temp[0] - behind
     dt = np.diff(time)
-    decay = np.exp(-dt / tau)
     with np.errstate(divide='ignore', invalid='ignore'):
         slope = np.where(dt > 0, np.diff(temp) / np.where(dt > 0, dt, 1.0), 0.0)
     for k in range(1, len(temp)):
         st = slope[k - 1] * tau
-        out[k] = temp[k] - st + (out[k - 1] - temp[k - 1] + st) * decay[k - 1]
+        decay = np.exp(-dt[k - 1] / tau)
+        out[..., k] = temp[k] - st + (out[..., k - 1] - temp[k - 1] + st) * decay
     return out
 
 
@@ -251,14 +262,17 @@ class TemperatureLag(PerAxisEffect):
     param_names = ('c_x', 'c_y', 'c_z')
     unit = 'm/s² per °C (of the lagged temperature)'
     variable = 'temperature'
-    searched = 1
+    searched = 2
     label = 'offset drift with the lagged temperature'
 
     TAU_GRID = 16
     """Time constants tried (log-spaced) before the best one is refined."""
 
-    def __init__(self, tau=None, time=None, lag=None):
-        self.tau, self._time, self._lag = tau, time, lag
+    START_GRID = (0.0, 0.03, 0.1, 0.2, 0.35, 0.6, 1.0)
+    """How far the die lags at the first window, as a share of slope x tau (see ``bind``)."""
+
+    def __init__(self, tau=None, time=None, lag=None, start=0.0):
+        self.tau, self._time, self._lag, self.start = tau, time, lag, start
 
     def applicable(self, context, baseline):
         reason = TemperatureBias.applicable(self, context, baseline)
@@ -280,29 +294,50 @@ class TemperatureLag(PerAxisEffect):
         low = min(max(0.01 * span, 2.0 * spacing), 0.5 * span)
         return np.geomspace(low, span, self.TAU_GRID)
 
-    def bind(self, c, tau=None):
-        """Return the effect bound to this session's temperature history with time constant tau."""
+    def bind(self, c, tau=None, start=0.0):
+        """
+        Return the effect bound to this session's temperature history.
+
+        :param tau: time constant, s (default the middle of ``tau_range``).
+        :param start: the die's lag behind the reported temperature at the first window,
+            as a share of what a steady rise at the starting rate s would give (s tau): 0
+            when the die was in equilibrium there, 1 when the temperature had been rising
+            like that for much longer than tau (a warm-up under way for L seconds gives
+            1 - exp(-L / tau)). Unknown, so searched with tau.
+        """
         tau = float(np.median(self.tau_range(c))) if tau is None else float(tau)
+        return self._bound(c, np.array([tau]), np.array([start]))[0]
+
+    def _bound(self, c, taus, starts):
         order = np.argsort(c.time, kind='stable')
         time, temp = c.time[order], c.temp[order]
-        lag = lagged(time, temp, tau)
-        return TemperatureLag(tau, time, lag - lag.mean())
+        behind = starts * start_slope(time, temp) * taus
+        lags = lagged(time, temp, taus, behind)
+        return [TemperatureLag(float(tau), time, lag - lag.mean(), float(start))
+                for tau, start, lag in zip(taus, starts, lags)]
 
     def bindings(self, c):
-        return [self.bind(c, tau) for tau in self.tau_range(c)]
+        taus, starts = np.meshgrid(self.tau_range(c), self.START_GRID, indexing='ij')
+        return self._bound(c, taus.ravel(), starts.ravel())
 
     def search(self, c, score):
-        """Return the binding whose tau scores best: the grid, then refined between neighbours."""
+        """
+        Return the binding that scores best: the grid of (tau, start), then tau refined.
+
+        tau is refined between its grid neighbours (bounded, in log), at the best start.
+        """
         from scipy import optimize
-        grid = self.tau_range(c)
-        scores = [score(self.bind(c, tau)) for tau in grid]
+        options = self.bindings(c)
+        scores = [score(b) for b in options]
         k = int(np.argmax(scores))
-        low, high = np.log(grid[max(k - 1, 0)]), np.log(grid[min(k + 1, len(grid) - 1)])
-        best = optimize.minimize_scalar(lambda v: -score(self.bind(c, np.exp(v))),
+        grid = self.tau_range(c)
+        i = k // len(self.START_GRID)
+        start = options[k].start
+        low, high = np.log(grid[max(i - 1, 0)]), np.log(grid[min(i + 1, len(grid) - 1)])
+        best = optimize.minimize_scalar(lambda v: -score(self.bind(c, np.exp(v), start)),
                                         bounds=(low, high), method='bounded',
                                         options={'xatol': 0.02})
-        tau = np.exp(best.x) if -best.fun > scores[k] else grid[k]
-        return self.bind(c, tau)
+        return self.bind(c, np.exp(best.x), start) if -best.fun > scores[k] else options[k]
 
     def columns(self, accel, temp, time, gravity=G0):
         if self._time is None:
