@@ -41,21 +41,20 @@ def walk_design(basis, offset_jac, time, start):
     return traces, cross, float(np.trace(p))
 
 
-def walk_rate_low(coef, coef_var, span):
+def walk_rate_low(coef, coef_var, factors):
     """
     Return a 99.9 % lower bound of K_i² per axis from a walk's fitted cosine terms, (R, 3).
 
-    A walk of K per √s has cosine coefficients of variance 2 K² T / (k pi)²: each fitted
-    coefficient, less its own estimation variance, estimates K² (k pi)² / (2 T); their mean
-    over the 3d terms, times 3d / chi²_3d(0.999), bounds K² from below.
+    A walk of K per √s gives each cosine coefficient a variance K² f_k
+    (``BiasRandomWalk.brownian``: about 2 T / (k pi)²): each fitted coefficient, less its
+    own estimation variance, over f_k estimates K²; their mean over the 3d terms, times
+    3d / chi²_3d(0.999), bounds K² from below.
 
     :param coef: (R, 3, d) fitted coefficients. :param coef_var: their variances, same shape
-        or broadcastable. :param span: the session's span, s.
+        or broadcastable. :param factors: (d,) the f_k.
     """
     d = coef.shape[-1]
-    k = np.arange(1, d + 1)
-    k2 = np.mean(np.maximum(coef ** 2 - coef_var, 0.0) * (k * np.pi) ** 2 / (2.0 * span),
-                 axis=-1)
+    k2 = np.mean(np.maximum(coef ** 2 - coef_var, 0.0) / factors, axis=-1)
     return k2 * (3 * d) / stats.chi2.ppf(1.0 - P_SUPPORT, 3 * d)
 
 
@@ -88,12 +87,11 @@ def walk_too_smooth(model, fit, c, basis, nu):
     """
     walk = model.objects['bias_random_walk']
     T, _, params = model.split(fit.x)
-    d = walk.degree
-    coef = params['bias_random_walk'].reshape(3, d)
+    coef = walk.cosines(params['bias_random_walk'])
     index = model.index('bias_random_walk')
     cov = np.linalg.pinv(fit.jac.T @ fit.jac)
-    coef_var = np.diag(cov)[index:index + 3 * d].reshape(3, d)
-    k2 = walk_rate_low(coef[None], coef_var[None], walk.span)
+    coef_var = walk.cosines(np.diag(cov)[index:index + len(walk.param_names)])
+    k2 = walk_rate_low(coef[None], coef_var[None], walk.brownian(c.time)[0])
     a = model.true_accel(fit.x, c)
     along = np.linalg.solve(T.T, (a / np.linalg.norm(a, axis=1)[:, None]).T).T
     s = np.sqrt(np.sum((along * c.sigma) ** 2, axis=1))

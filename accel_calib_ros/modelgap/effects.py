@@ -50,6 +50,8 @@ class Effect:
     """The session variable the effect's residual follows (a ``diagnose`` probe name)."""
     searched = 0
     """Parameters chosen by a search before the fit (a time constant): counted in tests."""
+    nests = ()
+    """Library effects this one contains as a special case (it replaces them in a set)."""
 
     def applicable(self, context, baseline):
         """Return '' when the session can show this effect, else the reason it cannot."""
@@ -322,9 +324,11 @@ class TemperatureLag(PerAxisEffect):
 
     def search(self, c, score):
         """
-        Return the binding that scores best: the grid of (tau, start), then tau refined.
+        Return the binding that scores best: the grid of (tau, start), then both refined.
 
-        tau is refined between its grid neighbours (bounded, in log), at the best start.
+        The two trade off along a narrow valley (a die that starts further behind looks like
+        a longer lag for a while), so they are refined in turn, three times: tau between its
+        grid neighbours (bounded, in log), the start over [0, 1].
         """
         from scipy import optimize
         options = self.bindings(c)
@@ -332,12 +336,20 @@ class TemperatureLag(PerAxisEffect):
         k = int(np.argmax(scores))
         grid = self.tau_range(c)
         i = k // len(self.START_GRID)
-        start = options[k].start
         low, high = np.log(grid[max(i - 1, 0)]), np.log(grid[min(i + 1, len(grid) - 1)])
-        best = optimize.minimize_scalar(lambda v: -score(self.bind(c, np.exp(v), start)),
-                                        bounds=(low, high), method='bounded',
-                                        options={'xatol': 0.02})
-        return self.bind(c, np.exp(best.x), start) if -best.fun > scores[k] else options[k]
+        log_tau, start, top = np.log(options[k].tau), options[k].start, scores[k]
+        for _ in range(3):
+            found = optimize.minimize_scalar(lambda v: -score(self.bind(c, np.exp(v), start)),
+                                             bounds=(low, high), method='bounded',
+                                             options={'xatol': 0.005})
+            if -found.fun > top:
+                log_tau, top = found.x, -found.fun
+            found = optimize.minimize_scalar(lambda v: -score(self.bind(c, np.exp(log_tau), v)),
+                                             bounds=(0.0, 1.0), method='bounded',
+                                             options={'xatol': 0.002})
+            if -found.fun > top:
+                start, top = found.x, -found.fun
+        return self.bind(c, np.exp(log_tau), start)
 
     def columns(self, accel, temp, time, gravity=G0):
         if self._time is None:
@@ -359,19 +371,21 @@ class BiasRandomWalk(Effect):
                    'line and not with temperature)')
     unit = 'm/s²'
     variable = 'time'
+    nests = ('bias_drift',)
 
     def __init__(self, degree=None, start=0.0, span=1.0):
         self.degree, self.start, self.span = degree, start, span
 
     @property
     def param_names(self):
-        k = self.degree or 0
-        return tuple(f'o_{axis}_{j}' for axis in 'xyz' for j in range(1, k + 1))
+        if not self.degree:
+            return ()
+        return tuple(f'o_{axis}_{j}' for axis in 'xyz' for j in range(self.degree + 1))
 
     MAX_DEGREE = 4
-    """Most smooth terms per axis: they hold 87 % of a random walk's variance about its mean
-    (its cosine coefficients fall like 1/k); a dependence with more structure (a cycle, a
-    step) is left to the time probe and the step alternative."""
+    """Most cosine terms per axis (beside the trend): with it they hold most of a random
+    walk's variance about its mean (its cosine coefficients fall like 1/k); a dependence with
+    more structure (a cycle, a step) is left to the time probe and the step alternative."""
 
     @classmethod
     def degrees_for(cls, windows):
@@ -397,24 +411,52 @@ class BiasRandomWalk(Effect):
         return max(self.bindings(c), key=lambda b: score(b) - len(b.param_names) * np.log(n))
 
     def basis(self, time):
-        """Return cos(k pi u), k = 1..degree, u the time scaled to [0, 1] over the session."""
+        """
+        Return the wander's terms over the session, (N, degree + 1).
+
+        u - 1/2 (a walk's trend: its cosine series converges slowly, so the straight part
+        is a term of its own, and a plain drift is a special case) and cos(k pi u),
+        k = 1..degree, u the time scaled to [0, 1] over the session.
+        """
         u = np.clip((np.asarray(time, float) - self.start) / self.span, 0.0, 1.0)
-        return np.cos(np.pi * np.arange(1, self.degree + 1)[None, :] * u[:, None])
+        return np.column_stack([u - 0.5, np.cos(np.pi * np.arange(1, self.degree + 1)[None, :]
+                                                 * u[:, None])])
 
     def columns(self, accel, temp, time, gravity=G0):
         if self.degree is None:
             raise ValueError('bias_random_walk needs a session: use bind(conditions)')
         phi = self.basis(time)
-        k = self.degree
+        k = self.degree + 1
         cols = np.zeros((len(time), 3, 3 * k))
         for i in range(3):
             cols[:, i, i * k:(i + 1) * k] = phi
         return cols
 
+    def cosines(self, params):
+        """Return the cosine coefficients of fitted parameters (..., 3 * (d + 1)) as (..., 3, d)."""
+        p = np.asarray(params, float)
+        return p.reshape(p.shape[:-1] + (3, self.degree + 1))[..., 1:]
+
+    def brownian(self, time):
+        """
+        Return what a walk of K = 1 per √s does to these terms at window times ``time``.
+
+        (variance of each cosine coefficient (d,), mean variance per window left beyond all
+        the terms and a constant): a Brownian path from the session's start, covariance
+        min(t_a, t_b), least-squares fitted by a constant and the terms.
+        """
+        t = np.asarray(time, float) - self.start
+        m = np.minimum.outer(t, t)
+        design = np.column_stack([np.ones(len(t)), self.basis(time)])
+        a = np.linalg.pinv(design)
+        factors = np.einsum('kn,nm,km->k', a, m, a)[2:]
+        rest = np.eye(len(t)) - design @ a
+        return factors, float(np.trace(rest @ m @ rest.T)) / len(t)
+
     def wander(self, params, gravity=G0, sensitivity=(1.0, 1.0, 1.0), points=200):
         """Return the offset wander over the session, (points, 3), in g per axis."""
         phi = self.basis(self.start + self.span * np.linspace(0.0, 1.0, points))
-        coef = np.asarray(params, float).reshape(3, self.degree)
+        coef = np.asarray(params, float).reshape(3, self.degree + 1)
         path = phi @ coef.T / np.asarray(sensitivity)
         return (path - path.mean(axis=0)) / gravity
 

@@ -69,7 +69,9 @@ class Binding:
         projected = self.cols - design.q @ (design.q.T @ self.cols)
         self.u = orthonormal(projected)
         self.pinv = np.linalg.pinv(projected)
-        self.k = len(effect.param_names) + effect.searched
+        nested = [n for n in getattr(effect, 'nests', ()) if n in design.final.names]
+        self.k = (len(effect.param_names) + effect.searched
+                  - sum(design.final.k(n) for n in nested))
         self.coef_var = np.sum(self.pinv ** 2, axis=1)
         self._maps = self._worst = self._walk = None
         self.design = design
@@ -293,8 +295,8 @@ def replay(design, y):
             signal[where] = part
             if name == 'bias_random_walk':
                 b = stack.options[0]
-                coef = params.reshape(len(where), 3, -1)
-                k2 = walk_rate_low(coef, b.coef_var.reshape(3, -1)[None], b.effect.span)
+                k2 = walk_rate_low(b.effect.cosines(params), b.effect.cosines(b.coef_var)[None],
+                                   b.effect.brownian(design.fits.c.time)[0])
                 p_walk = walk_smoothness_p(chosen[where], k2, b.walk(), design.nu)
                 veto[where] = np.where(p_walk < P_SUPPORT, 'too smooth', '')
         trials.append(Trial(name, EFFECTS[name].variable, k[pick], chosen,

@@ -97,11 +97,12 @@ def _beside_structure(result, name, kept):
 
     Fitted to the residuals of the set without ``name`` (linearised): the significant
     probes of other variables (free shapes), and a single jump in time (a parametric shape).
-    ``name`` is a projection of that structure when its columns add nothing beside it
-    (F-test) while the structure can judge it: its fitted signal lies mostly outside the
-    probes' span (inside it, the two variables are confounded in this session, e.g. a
-    temperature that rises with time, and a free shape follows anything), and the jump adds
-    something beside ``name`` (else the two are one shape here).
+    ``name`` is a projection of that structure when the structure is the better explanation
+    by the selection's criterion (its BIC gain at least ``name``'s), ``name``'s columns add
+    nothing beside it (F-test), and the structure can judge it: ``name``'s fitted signal
+    lies mostly outside the probes' span (inside it, the two variables are confounded in
+    this session, e.g. a temperature that rises with time, and a free shape follows
+    anything), and the jump adds something beside ``name`` (else the two are one shape).
 
     :returns: (what the structure is, the F-test p-value of ``name`` beside it) or None.
     """
@@ -115,6 +116,17 @@ def _beside_structure(result, name, kept):
     q = without.basis
     j = fits._columns(without, full.bound[name])
     j = j - q @ (q.T @ j)
+    # The structure must be the better explanation by the same criterion (BIC gain on the
+    # set without the effect), and leave the effect nothing to add.
+    k_e = full.k(name)
+    own_bic = float(support_stats([chi2], [full.chi2], k_e, full.dof, fits.n, fits.nu)[2][0])
+
+    def preferred(u, extra=0):
+        span = _span(u)
+        drop = float(np.sum((span.T @ r) ** 2))
+        k = span.shape[1] + extra
+        _, p, bic = support_stats([chi2], [chi2 - drop], k, dof - k, fits.n, fits.nu)
+        return p[0] < P_SUPPORT and bic[0] >= own_bic
     probes = residual_probes(without.model, without.fit, c)
     found = [(f'the {probe} probe ({p["rms_mg"]:.2g} mg RMS)', p['_basis'])
              for probe, p in probes.items() if FAMILY[probe] != family and p['significant']]
@@ -124,16 +136,13 @@ def _beside_structure(result, name, kept):
         span = _span(u)
         inside = float(np.sum((span.T @ signal) ** 2) / max(signal @ signal, 1e-300))
         on_top = added_on_top(r, chi2, dof, u, j)
-        if inside <= COLLINEAR and on_top >= P_SUPPORT:
+        if inside <= COLLINEAR and on_top >= P_SUPPORT and preferred(u):
             return ' and '.join(label for label, _ in found), on_top
     step = best_step(without.model, without.fit, c)
     if step:
-        k = step['basis'].shape[1] + 1
-        _, p, bic = support_stats([chi2], [chi2 - step['delta_chi2']], k, dof - k, fits.n,
-                                  fits.nu)
         on_top = added_on_top(r, chi2, dof, step['basis'], j)
         back = added_on_top(r, chi2, dof, j, step['basis'])
-        if p[0] < P_SUPPORT and bic[0] > 0 and on_top >= P_SUPPORT and back < P_SUPPORT:
+        if on_top >= P_SUPPORT and back < P_SUPPORT and preferred(step['basis'], 1):
             return (f'a single jump in time at t = {step["time"]:+.0f} s (about '
                     f'{step["size_mg"]:.2g} mg RMS; the mount shifting?)'), on_top
     return None

@@ -156,10 +156,10 @@ class DiagnoseResult:
         """
         Return the scatter per window, m/s², that a named random walk leaves, 0 without one.
 
-        ``bias_random_walk`` follows the offset with a few cosine terms; a random walk
-        of K per √s has cosine coefficients of variance 2 K² T / (k pi)² over a session
-        of T seconds, so the terms beyond the d fitted leave a wander of variance about
-        K² T / (pi² d) per axis that varies from window to window. K is estimated from the
+        ``bias_random_walk`` follows the offset with a trend and a few cosine terms; a random
+        walk of K per √s gives each cosine coefficient a variance K² f_k and leaves a wander
+        beyond the terms of variance K² r per window (``BiasRandomWalk.brownian``, about
+        2 T / (k pi)² and T / (pi² d) over a session of T seconds). K is estimated from the
         fitted coefficients; the scatter is taken along gravity, averaged over windows.
         """
         fit = self.fits[-1]
@@ -168,11 +168,10 @@ class DiagnoseResult:
         if walk is None:
             return 0.0
         T, _, params = model.split(fit.x)
-        d = walk.degree
-        coef = params['bias_random_walk'].reshape(3, d) / np.abs(np.diag(T))[:, None]
-        k = np.arange(1, d + 1)
-        k2 = np.mean(coef ** 2 * (k * np.pi) ** 2 / (2.0 * walk.span), axis=1)
-        rough = k2 * walk.span / (np.pi ** 2 * d)                  # variance per axis
+        coef = walk.cosines(params['bias_random_walk']) / np.abs(np.diag(T))[:, None]
+        factors, rest = walk.brownian(self.conditions.time)
+        k2 = np.mean(coef ** 2 / factors, axis=1)
+        rough = k2 * rest                                          # variance per axis
         a = model.true_accel(fit.x, self.conditions)
         n = a / np.linalg.norm(a, axis=1, keepdims=True)
         return float(np.sqrt(np.mean(n ** 2 @ rough)))

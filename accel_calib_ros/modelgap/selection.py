@@ -24,6 +24,7 @@ import numpy as np
 from .criterion import COLLINEAR, decide, evaluate, rivals, Trial
 from .effects import EFFECTS
 from .evidence import separation_advice
+from .setfit import added
 
 
 class Selection:
@@ -77,7 +78,7 @@ def _correlations(fits, base, trials, setfits, evidence):
 
 
 def _veto_record(out, trial, evidence, j, step, reason):
-    if any(v['effect'] == trial.name and v['reason'] == reason for v in out.vetoed):
+    if any(v['effect'] == trial.name for v in out.vetoed):
         return
     out.vetoed.append({'effect': trial.name, 'reason': reason,
                        'worst_case_mg': float(trial.worst[0]), 'F': float(evidence['F'][0, j]),
@@ -93,6 +94,7 @@ def select(fits, candidates, max_size=4):
     :param max_size: most effects in the set.
     """
     out = Selection()
+    fits.candidates = list(candidates)
     chosen = []
     seen = {frozenset()}
     while len(chosen) < max_size and out.rounds < 3 * max_size:
@@ -115,7 +117,7 @@ def select(fits, candidates, max_size=4):
         if w < 0:
             break
         name = trials[w].name
-        chosen.append(name)
+        chosen = added(chosen, name)[0]
         if tie[0]:
             out.ties.append(name)
         out.rivals[name] = [
@@ -139,10 +141,13 @@ def member_support(fits, chosen, name):
     :returns: (supported, evidence dict of (1, 1) arrays, trial).
     """
     full = fits.fit(chosen)
-    without = fits.fit([n for n in chosen if n != name])
+    # Without it, the simpler effects it contains stand in its place (a drift for a wander).
+    simpler = [n for n in EFFECTS[name].nests if n in fits.candidates and n not in chosen]
+    without = fits.fit([n for n in chosen if n != name] + simpler)
     if full is None or without is None:
         return True, None, None
-    trial = Trial(name, EFFECTS[name].variable, full.k(name), [full.chi2], full.dof,
+    k = full.k(name) - sum(without.k(n) for n in simpler)
+    trial = Trial(name, EFFECTS[name].variable, k, [full.chi2], full.dof,
                   [fits.worst(full, name)], [fits.cv(full)], [fits.veto(name, full)])
     evidence = evaluate(np.array([without.chi2]), fits.cv(without)[None, :], [trial], fits.n,
                         fits.nu, fits.threshold)

@@ -32,6 +32,12 @@ def orthonormal(cols, against=None, tol=RANK_TOL):
     return u[:, sv > tol * max(sv.max(), 1e-300)] if sv.size else u[:, :0]
 
 
+def added(names, name):
+    """Return (the set ``names`` with ``name`` added, less what it contains; what it replaced)."""
+    replaced = [n for n in names if n in EFFECTS[name].nests]
+    return [n for n in names if n not in replaced] + [name], replaced
+
+
 @dataclass
 class SetFit:
     """One set of library effects fitted jointly to the session."""
@@ -90,6 +96,7 @@ class SessionFits:
         self.n = len(c.readings)
         self.veto = veto or (lambda name, setfit: '')
         self.folds = make_folds(c.time)
+        self.candidates = []
         self.cache = {}
         model, fit = fit_model(baseline, [], c, start)
         self.cache[frozenset()] = SetFit((), {}, model, fit)
@@ -247,11 +254,20 @@ class SessionFits:
         return setfit._cv
 
     def trial(self, names, name):
-        """Return the ``criterion.Trial`` of adding effect ``name`` to the set ``names``."""
-        setfit = self.fit(tuple(names) + (name,))
+        """
+        Return the ``criterion.Trial`` of adding effect ``name`` to the set ``names``.
+
+        An effect that contains another as a special case (``Effect.nests``: a wander
+        contains a straight drift) takes its place: the set is ``names`` without it plus
+        ``name``, and the parameters added are the difference.
+        """
+        kept, replaced = added(names, name)
+        setfit = self.fit(kept)
         if setfit is None or setfit.dof < 2:
             return None, None
-        trial = Trial(name, EFFECTS[name].variable, setfit.k(name), [setfit.chi2], setfit.dof,
+        base = self.fit(names)
+        k = setfit.k(name) - sum(base.k(n) for n in replaced)
+        trial = Trial(name, EFFECTS[name].variable, k, [setfit.chi2], setfit.dof,
                       [self.worst(setfit, name)], [self.cv(setfit)],
                       [self.veto(name, setfit)])
         return trial, setfit

@@ -2,8 +2,8 @@
 The named effects as steps: one object per effect, in the order the selection added them.
 
 Step i compares the joint fit of the first i - 1 effects with that of the first i (gap
-before and after, F, p, ΔBIC, the fitted size), and says how the effect holds beside all
-the others in the final set, refitted jointly (``joint``).
+before and after, F, p, ΔBIC); the effect's parameters, size and time constant are those of
+the final joint fit, and ``joint`` says how it holds beside all the others there.
 """
 
 import numpy as np
@@ -37,15 +37,18 @@ def record_steps(result, chosen):
                       [fits.worst(after, name)], [fits.cv(after)], [''])
         ev = evaluate(np.array([before.chi2]), fits.cv(before)[None, :], [trial], fits.n,
                       fits.nu, fits.threshold)
-        effect = after.bound[name]
-        params = after.params(name)
-        T = after.model.split(after.fit.x)[0]
+        # The effect as found: fitted jointly with all the others in the final set.
+        final = chain[-1]
+        effect = final.bound[name]
+        params = final.params(name)
+        T = final.model.split(final.fit.x)[0]
         evidence = {'F': float(ev['F'][0, 0]), 'p': float(ev['p'][0, 0]),
                     'delta_chi2': float(before.chi2 - after.chi2),
                     'delta_bic': float(ev['bic'][0, 0]), 'params': params.tolist(),
                     'param_names': list(effect.param_names), 'unit': effect.unit,
                     'magnitude': effect.magnitude(params, c.gravity, np.diag(T)),
-                    'worst_case_mg': float(trial.worst[0]), 'description': effect.description}
+                    'worst_case_mg': float(fits.worst(final, name)),
+                    'description': effect.description}
         if getattr(effect, 'tau', None) is not None:
             evidence['tau_s'] = float(effect.tau)
         if len(chosen) > 1:
