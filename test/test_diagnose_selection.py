@@ -18,7 +18,7 @@ MG = G0 / 1000.0
 
 
 def warm_up(t):
-    """A warm-up 25 -> 40 °C with a time constant of 100 s: temperature rises with time."""
+    """Return a warm-up 25 -> 40 °C (time constant 100 s): temperature rises with time."""
     return 40.0 - 15.0 * np.exp(-np.asarray(t, float) / 100.0)
 
 

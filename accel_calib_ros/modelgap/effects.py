@@ -419,8 +419,8 @@ class BiasRandomWalk(Effect):
         k = 1..degree, u the time scaled to [0, 1] over the session.
         """
         u = np.clip((np.asarray(time, float) - self.start) / self.span, 0.0, 1.0)
-        return np.column_stack([u - 0.5, np.cos(np.pi * np.arange(1, self.degree + 1)[None, :]
-                                                 * u[:, None])])
+        k = np.arange(1, self.degree + 1)
+        return np.column_stack([u - 0.5, np.cos(np.pi * k[None, :] * u[:, None])])
 
     def columns(self, accel, temp, time, gravity=G0):
         if self.degree is None:
@@ -433,7 +433,7 @@ class BiasRandomWalk(Effect):
         return cols
 
     def cosines(self, params):
-        """Return the cosine coefficients of fitted parameters (..., 3 * (d + 1)) as (..., 3, d)."""
+        """Return the cosine coefficients of parameters (..., 3 (d + 1)) as (..., 3, d)."""
         p = np.asarray(params, float)
         return p.reshape(p.shape[:-1] + (3, self.degree + 1))[..., 1:]
 
