@@ -32,7 +32,7 @@ P_SUPPORT = 1e-3
 COLLINEAR = 0.9
 """Two candidates whose signatures correlate more than this are confounded in the session."""
 
-TIE_BIC = 2.0
+TIE_BIC = 6.0
 """BIC gains closer than this are a tie ("not worth more than a bare mention", Kass & Raftery)."""
 
 STRONG_BIC = 10.0

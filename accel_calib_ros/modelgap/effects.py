@@ -318,9 +318,18 @@ class TemperatureLag(PerAxisEffect):
         return [TemperatureLag(float(tau), time, lag - lag.mean(), float(start))
                 for tau, start, lag in zip(taus, starts, lags)]
 
-    def bindings(self, c):
-        taus, starts = np.meshgrid(self.tau_range(c), self.START_GRID, indexing='ij')
+    def bindings(self, c, starts=None):
+        """Return the grid of bindings (tau, start); ``starts`` a coarser list of starts."""
+        starts = self.START_GRID if starts is None else starts
+        taus, starts = np.meshgrid(self.tau_range(c), starts, indexing='ij')
         return self._bound(c, taus.ravel(), starts.ravel())
+
+    SIMULATED_STARTS = (0.0, 0.2, 1.0)
+    """The starts the naming simulation (``power``) tries: its bindings are coarser."""
+
+    def simulated_bindings(self, c):
+        """Return the bindings the naming simulation injects and searches over."""
+        return self.bindings(c, self.SIMULATED_STARTS)
 
     def search(self, c, score):
         """

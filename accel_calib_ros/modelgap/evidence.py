@@ -115,14 +115,16 @@ class WorstGrid:
     The directions and conditions over which an effect's worst case is taken, for one fit.
 
     The directions of gravity (``directions`` spread over the sphere plus the session's
-    own) and the temperatures and times of the session (centred as in the fit, so what the
-    baseline absorbs at the session mean is not counted; at most ``max_conditions``, the
-    extremes included).
+    own, at most ``session`` of them when given) and the temperatures and times of the
+    session (centred as in the fit, so what the baseline absorbs at the session mean is not
+    counted; at most ``max_conditions``, the extremes included).
     """
 
-    def __init__(self, model, x, c, max_conditions=60, directions=200):
+    def __init__(self, model, x, c, max_conditions=60, directions=200, session=None):
         self.T_inv = np.linalg.inv(model.split(x)[0])
         a_session = model.true_accel(x, c)
+        if session is not None and len(a_session) > session:
+            a_session = a_session[np.linspace(0, len(a_session) - 1, session).round().astype(int)]
         self.dirs = np.vstack([fibonacci_directions(directions),
                                a_session / np.linalg.norm(a_session, axis=1, keepdims=True)])
         conds = np.unique(np.column_stack([c.temp, c.time]), axis=0)
@@ -133,15 +135,26 @@ class WorstGrid:
             conds = conds[sorted(keep)]
         self.conds, self.gravity = conds, c.gravity
 
-    def matrix(self, effect):
+    def rows(self):
+        """Return every (direction, temperature, time) of the grid: (D, 3), (D,), (D,)."""
+        dirs = np.repeat(self.dirs, len(self.conds), axis=0)
+        cond = np.tile(self.conds, (len(self.dirs), 1))
+        return dirs, cond[:, 0], cond[:, 1]
+
+    def matrix(self, effect, full=False):
         """
         Return the error per unit parameter of ``effect`` in corrected acceleration, (D, 3, k), mg.
 
         T^-1 columns(a, θ, t) over the grid. An effect whose columns do not depend on the
         direction (an offset) or on the conditions (a direction term) is evaluated once
-        along that axis. The worst case of parameters p is max_D |W p| (``worst_case_mg``).
+        along that axis (``full``: over every row of ``rows`` all the same). The worst case
+        of parameters p is max_D |W p| (``worst_case_mg``).
         """
         g, dirs, conds = self.gravity, self.dirs, self.conds
+        if full:
+            d, temp, time = self.rows()
+            cols = effect.columns(g * d, temp, time, g)
+            return 1000.0 / G0 * np.einsum('ij,njk->nik', self.T_inv, cols)
         probe = effect.columns(g * dirs[:2], np.full(2, conds[0, 0]), np.full(2, conds[0, 1]),
                                g)
         by_direction = not np.allclose(probe[0], probe[1])
@@ -163,8 +176,8 @@ def worst_case_matrix(model, x, c, effect, max_conditions=60, directions=200):
 def worst_case_mg(matrix, params):
     """Return max_D |W p| for parameters ``params`` (k,) or (R, k): (R,) or a float, mg."""
     p = np.atleast_2d(np.asarray(params, float))
-    err = np.einsum('nik,rk->rni', matrix, p)
-    worst = np.sqrt(np.max(np.sum(err ** 2, axis=2), axis=1))
+    err = (matrix.reshape(-1, matrix.shape[-1]) @ p.T).reshape(matrix.shape[0], 3, len(p))
+    worst = np.sqrt(np.max(np.sum(err ** 2, axis=1), axis=0))
     return worst if np.ndim(params) > 1 else float(worst[0])
 
 

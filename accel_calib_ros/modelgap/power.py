@@ -32,6 +32,7 @@ from .criterion import (COLLINEAR, cv_folds, decide, evaluate, fold_maps, P_SUPP
                         RIVAL_BIC, support_stats, Trial)
 from .effects import EFFECTS, G0
 from .evidence import worst_case_mg, WorstGrid
+from .model import Conditions
 from .noise import null_gap_limit
 from .probes import FAMILY
 from .pruning import SLOW_FACTOR
@@ -53,11 +54,12 @@ STEPS = 9
 LIMIT_STEP = 2
 """The ladder step at twice the threshold, where the verdict asks to be noticed."""
 
-SIM_CONDITIONS = 24
-"""Temperatures and times at which the worst case is evaluated in the simulation."""
+SIM_CONDITIONS = 8
+"""Temperatures and times at which the worst case is evaluated in the simulation (the
+extremes of each among them)."""
 
-SIM_DIRECTIONS = 60
-"""Directions spread over the sphere (besides the session's) for the simulated worst case."""
+SIM_DIRECTIONS = 24
+"""Directions spread over the sphere, and of the session's own, for the simulated worst case."""
 
 
 class Binding:
@@ -84,8 +86,15 @@ class Binding:
 
     @property
     def worst(self):
+        """
+        Return what the effect's parameters change in corrected acceleration, (D, 3, k) mg.
+
+        Its own error (-T^-1 columns) plus what the model it is added to takes up of it when
+        refitted (``Design.absorbed``): the linear form of ``SessionFits.contribution``.
+        """
         if self._worst is None:
-            self._worst = self.design.grid.matrix(self.effect)
+            d = self.design
+            self._worst = -d.grid.matrix(self.effect, full=True) - d.absorbed @ self.cols
         return self._worst
 
     def walk(self):
@@ -95,6 +104,12 @@ class Binding:
             self._walk = walk_design(orthonormal(np.hstack([d.q, self.u])), d.offset,
                                      d.fits.c.time, self.effect.start)
         return self._walk
+
+
+def _bindings(effect, c):
+    """Return the bindings the simulation uses (``simulated_bindings`` when an effect has it)."""
+    return (effect.simulated_bindings(c) if hasattr(effect, 'simulated_bindings')
+            else effect.bindings(c))
 
 
 class Design:
@@ -109,7 +124,9 @@ class Design:
     def __init__(self, fits, final, names, extra=None, coloured=False):
         self.fits, self.final, self.n, self.nu = fits, final, fits.n, fits.nu
         self.coloured = coloured
-        self.grid = WorstGrid(final.model, final.fit.x, fits.c, SIM_CONDITIONS, SIM_DIRECTIONS)
+        self.grid = WorstGrid(final.model, final.fit.x, fits.c, SIM_CONDITIONS, SIM_DIRECTIONS,
+                              SIM_DIRECTIONS)
+        self.absorbed = self._absorbed()
         self.threshold, self.folds = fits.threshold, fits.folds
         searched = sum(e.searched for e in final.bound.values())
         cols = final.fit.jac if extra is None else np.hstack([final.fit.jac, extra])
@@ -119,7 +136,7 @@ class Design:
         self.limit = null_gap_limit(self.dof, self.nu)
         self.names = list(names)
         self.testable = [n for n in names if self.dof - self._size(n) >= 2]
-        self.options = {n: [Binding(self, b) for b in EFFECTS[n].bindings(fits.c)]
+        self.options = {n: [Binding(self, b) for b in _bindings(EFFECTS[n], fits.c)]
                         for n in self.names}
         self.stacks = {n: _stack(options) for n, options in self.options.items()}
         self.offset = fits._columns(final, _Offset())
@@ -131,6 +148,29 @@ class Design:
         self.s = np.sqrt(np.sum((along * fits.c.sigma) ** 2, axis=1))     # noise along g
         self.T_inv = np.linalg.inv(final.model.split(x)[0])
         self.corr = self._correlations()
+
+    def _absorbed(self):
+        """
+        Return the change of corrected acceleration per unit residual the model takes up, (D, 3, N).
+
+        Readings on the worst-case grid that follow the final model; d(corrected
+        acceleration)/d(parameters) by differences, times the least-squares map from a
+        residual to the parameters' change (the pseudo-inverse of the fit's Jacobian), mg.
+        """
+        final, c = self.final, self.fits.c
+        dirs, temp, time = self.grid.rows()
+        at = Conditions(np.zeros_like(dirs), np.ones_like(dirs), temp, time, c.gravity,
+                        c.temp_span, c.time_span)
+        x = final.fit.x
+        at.readings = final.model.predict(x, dirs, at)
+        a0 = final.model.true_accel(x, at)
+        slopes = np.empty(dirs.shape + (len(x),))
+        for j in range(len(x)):
+            step = 1e-6 * max(abs(x[j]), 1e-3)
+            moved = x.copy()
+            moved[j] += step
+            slopes[:, :, j] = (final.model.true_accel(moved, at) - a0) / step
+        return 1000.0 / G0 * slopes @ np.linalg.pinv(final.fit.jac)
 
     def _mark_confounded(self):
         """
@@ -157,7 +197,7 @@ class Design:
                 self.confounded[name] = options[0].confounded
 
     def _size(self, name):
-        options = EFFECTS[name].bindings(self.fits.c)
+        options = _bindings(EFFECTS[name], self.fits.c)
         return min(len(b.param_names) + b.searched for b in options)
 
     def _correlations(self):
@@ -229,22 +269,22 @@ def _evidence_of(stack, pick, y, folds):
 
     :param pick: (R,) the binding of each replicate, an index into ``stack``.
     """
-    u = stack.u[pick]                                                # (R, N, k)
-    coef = np.einsum('rn,rnk->rk', y, u)
-    signal = np.einsum('rnk,rk->rn', u, coef)
-    rest = y - signal
+    signal = np.empty_like(y)
     cv = np.empty((len(y), len(folds)))
-    for f, block in enumerate(folds):
-        held = np.einsum('rij,rj->ri', stack.maps[f][pick], rest[:, block])
-        cv[:, f] = np.where(np.all(np.isfinite(held), axis=1), np.sum(held ** 2, axis=1),
-                            np.inf)
-    if len(stack.idx) == 1:
-        params = y @ stack.pinv[0].T
-        worst = worst_case_mg(stack.worst[0], params)
-    else:
-        params = np.einsum('rkn,rn->rk', stack.pinv[pick], y)
-        err = np.einsum('rdik,rk->rdi', stack.worst[pick], params)
-        worst = np.sqrt(np.max(np.sum(err ** 2, axis=2), axis=1))
+    params = np.empty((len(y), stack.u.shape[2]))
+    worst = np.empty(len(y))
+    for j in np.unique(pick):
+        rows = np.flatnonzero(pick == j)
+        u = stack.u[j]
+        part = (y[rows] @ u) @ u.T
+        signal[rows] = part
+        rest = y[rows] - part
+        for f, block in enumerate(folds):
+            held = rest[:, block] @ stack.maps[f][j].T
+            cv[rows, f] = np.where(np.all(np.isfinite(held), axis=1),
+                                   np.sum(held ** 2, axis=1), np.inf)
+        params[rows] = y[rows] @ stack.pinv[j].T
+        worst[rows] = worst_case_mg(stack.worst[j], params[rows])
     return signal, cv, params, worst
 
 

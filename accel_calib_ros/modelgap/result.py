@@ -423,7 +423,7 @@ class DiagnoseResult:
         cause = ('noise too uncertain' if known is not None and known <= self.threshold_mg
                  and (mde is None or mde > self.threshold_mg)
                  else 'noise too large' if known is None or known > self.threshold_mg
-                 else 'too little to tell the effects apart')
+                 else 'this design shows some effects only weakly')
         weak = self.weak_effects()
         if weak:
             limit = CANNOT_TELL_FACTOR * self.threshold_mg

@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .criterion import cv_folds, fold_maps, make_folds, Trial
-from .effects import EFFECTS
-from .evidence import effect_worst_case_mg
-from .model import fit_model, Model
+from .effects import EFFECTS, G0
+from .evidence import effect_worst_case_mg, WorstGrid
+from .model import Conditions, fit_model, Model
 
 RANK_TOL = 1e-9
 """Singular values below this share of the largest are not columns (a degenerate binding)."""
@@ -97,6 +97,7 @@ class SessionFits:
         self.veto = veto or (lambda name, setfit: '')
         self.folds = make_folds(c.time)
         self.candidates = []
+        self._grid = None
         self.cache = {}
         model, fit = fit_model(baseline, [], c, start)
         self.cache[frozenset()] = SetFit((), {}, model, fit)
@@ -246,6 +247,39 @@ class SessionFits:
                 setfit.model, setfit.fit.x, self.c, name, setfit.params(name))
         return setfit._worst[name]
 
+    def contribution(self, full, without):
+        """
+        Return how much a set changes the corrected acceleration over another, worst case, mg.
+
+        Readings that follow ``full`` (every direction of ``WorstGrid``, every temperature
+        and time of the session), corrected by ``without`` (refitted without the effect):
+        the largest |a - g n|. What an effect adds beside the others, with what they and the
+        baseline take up when it is left out; two nearly collinear effects with large
+        opposite parameters add only what their sum changes.
+        """
+        key = ('contribution', without.names)
+        if key not in full._worst:
+            grid = self.grid
+            n_dir, n_cond = len(grid.dirs), len(grid.conds)
+            dirs = np.repeat(grid.dirs, n_cond, axis=0)
+            cond = np.tile(grid.conds, (n_dir, 1))
+            c = self.c
+            at = Conditions(np.zeros_like(dirs), np.ones_like(dirs), cond[:, 0], cond[:, 1],
+                            c.gravity, c.temp_span, c.time_span)
+            at.readings = full.model.predict(full.fit.x, dirs, at)
+            a = without.model.true_accel(without.fit.x, at)
+            err = np.linalg.norm(a - c.gravity * dirs, axis=1)
+            full._worst[key] = 1000.0 * float(np.max(err)) / G0
+        return full._worst[key]
+
+    @property
+    def grid(self):
+        """Return the directions and conditions of the worst case (``evidence.WorstGrid``)."""
+        if self._grid is None:
+            base = self.cache[frozenset()]
+            self._grid = WorstGrid(base.model, base.fit.x, self.c)
+        return self._grid
+
     def cv(self, setfit):
         """Return the held-out chi² per fold of ``setfit``, (K,)."""
         if setfit._cv is None:
@@ -268,7 +302,7 @@ class SessionFits:
         base = self.fit(names)
         k = setfit.k(name) - sum(base.k(n) for n in replaced)
         trial = Trial(name, EFFECTS[name].variable, k, [setfit.chi2], setfit.dof,
-                      [self.worst(setfit, name)], [self.cv(setfit)],
+                      [self.contribution(setfit, base)], [self.cv(setfit)],
                       [self.veto(name, setfit)])
         return trial, setfit
 

@@ -34,7 +34,7 @@ def record_steps(result, chosen):
     for i, name in enumerate(chosen):
         before, after = chain[i], chain[i + 1]
         trial = Trial(name, EFFECTS[name].variable, after.k(name), [after.chi2], after.dof,
-                      [fits.worst(after, name)], [fits.cv(after)], [''])
+                      [fits.contribution(after, before)], [fits.cv(after)], [''])
         ev = evaluate(np.array([before.chi2]), fits.cv(before)[None, :], [trial], fits.n,
                       fits.nu, fits.threshold)
         # The effect as found: fitted jointly with all the others in the final set.
@@ -47,7 +47,8 @@ def record_steps(result, chosen):
                     'delta_bic': float(ev['bic'][0, 0]), 'params': params.tolist(),
                     'param_names': list(effect.param_names), 'unit': effect.unit,
                     'magnitude': effect.magnitude(params, c.gravity, np.diag(T)),
-                    'worst_case_mg': float(fits.worst(final, name)),
+                    'worst_case_mg': float(trial.worst[0]),
+                    'effect_worst_case_mg': float(fits.worst(final, name)),
                     'description': effect.description}
         if getattr(effect, 'tau', None) is not None:
             evidence['tau_s'] = float(effect.tau)
