@@ -319,7 +319,7 @@ class TemperatureLag(PerAxisEffect):
                 for tau, start, lag in zip(taus, starts, lags)]
 
     def bindings(self, c, starts=None):
-        """Return the grid of bindings (tau, start); ``starts`` a coarser list of starts."""
+        """Return the grid of bindings over tau and start (``starts``: a coarser list)."""
         starts = self.START_GRID if starts is None else starts
         taus, starts = np.meshgrid(self.tau_range(c), starts, indexing='ij')
         return self._bound(c, taus.ravel(), starts.ravel())

@@ -151,7 +151,7 @@ class Design:
 
     def _absorbed(self):
         """
-        Return the change of corrected acceleration per unit residual the model takes up, (D, 3, N).
+        Return what the model takes up of a residual, in corrected acceleration, (D, 3, N).
 
         Readings on the worst-case grid that follow the final model; d(corrected
         acceleration)/d(parameters) by differences, times the least-squares map from a
