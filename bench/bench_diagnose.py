@@ -857,9 +857,8 @@ def _run(data, baseline):
 def corpus(trials):
     print(f'\n== Regression corpus: every class the rounds were judged on, and new ones '
           f'({trials} seeds each). right = exactly the hidden effects named; missed / extra: '
-          'a hidden one not named / another named; alt = for "right", every confounded rival '
-          'reported as an alternative; verdicts: explained, cannot tell, NOT explained, other '
-          '(negligible, walk, slow noise); outside = "outside the library" said')
+          'a hidden one not named / another named; verdicts: explained, cannot tell, NOT '
+          'explained, other (negligible, walk, slow noise); s = seconds per diagnose (median)')
     print(f'  {"class":46s} {"round":>6s} {"right":>6s} {"missed":>6s} {"extra":>6s} '
           f'{"expl.":>6s} {"c.tell":>6s} {"NOT":>5s} {"other":>6s} {"s (med)":>7s}')
     for label, rounds, make, truth in corpus_classes():
