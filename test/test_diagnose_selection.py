@@ -49,7 +49,9 @@ def test_a_model_that_fits_is_judged_against_the_pooled_noise_level():
     # 3 dof left and a chi² of 4.1: the model fits, so the measured noise level (362 dof)
     # is pooled with it instead of testing against F(k, 3) (the 12-window gn case).
     v, dof = variance([4.1], 3, 362.0)
-    assert v[0] == pytest.approx((4.1 + 362.0) / 365.0) and dof[0] == 365.0
+    assert v[0] == pytest.approx(4.1 / 3.0) and dof[0] == 365.0
+    v, dof = variance([2.1], 3, 362.0)
+    assert v[0] == pytest.approx((2.1 + 362.0) / 365.0) and dof[0] == 365.0
     # A disagreement still unexplained is not taken for noise.
     v, dof = variance([300.0], 30, 362.0)
     assert v[0] == pytest.approx(10.0) and dof[0] == 30.0

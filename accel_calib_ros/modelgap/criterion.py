@@ -6,9 +6,9 @@ one without some effects (``support``), or between sets of equal footing (``deci
 
 - the variance of a normalised residual is the noise level measured inside the windows
   pooled with the larger model's chi² when that model fits (its gap within the noise), so
-  that it is judged with all the degrees of freedom of both; the model's own chi²/dof when
-  it does not, so that a disagreement still unexplained is not taken for noise
-  (``variance``);
+  that it is judged with all the degrees of freedom of both (never below its own
+  chi²/dof); the model's own chi²/dof when it does not, so that a disagreement still
+  unexplained is not taken for noise (``variance``);
 - an added set of k parameters is supported when its nested F-test is significant
   (``P_SUPPORT``), its BIC gain ``delta_chi2 / v - k ln N`` is positive, its worst-case
   error exceeds the practical threshold, no measurement contradicts it, and, when the BIC
@@ -17,7 +17,8 @@ one without some effects (``support``), or between sets of equal footing (``deci
 - among supported candidates, the largest BIC gain wins; confounded candidates (signature
   correlation above ``COLLINEAR``) within ``TIE_BIC`` of it are decided by the held-out
   chi², and where that does not separate them either, by Occam: fewer parameters first,
-  then a recorded cause (direction, temperature) before a catch-all in time.
+  then a recorded cause (direction, temperature) before a catch-all in time, then the
+  larger BIC gain.
 
 The functions take arrays over replicates (R,), so that the power simulation
 (``power``) replays exactly the decisions the workflow takes on the session (R = 1).
@@ -33,7 +34,7 @@ COLLINEAR = 0.9
 """Two candidates whose signatures correlate more than this are confounded in the session."""
 
 TIE_BIC = 6.0
-"""BIC gains closer than this are a tie ("not worth more than a bare mention", Kass & Raftery)."""
+"""BIC gains closer than this are a tie: short of strong evidence (Kass & Raftery: 6)."""
 
 STRONG_BIC = 10.0
 """A BIC gain beyond this is very strong evidence; below it, held-out windows must agree."""
@@ -41,8 +42,9 @@ STRONG_BIC = 10.0
 RIVAL_BIC = 10.0
 """A confounded runner-up within this of the winner's BIC gain is reported as an alternative."""
 
-VARIABLE_RANK = {'direction': 0, 'magnitude': 0, 'temperature': 1, 'time': 2}
-"""Occam's order among equally simple tied candidates: a recorded cause before time."""
+VARIABLE_RANK = {'direction': 0, 'magnitude': 0, 'temperature': 0, 'time': 1}
+"""Occam's order among equally simple tied candidates: a recorded cause (direction,
+temperature) before a catch-all in time; between recorded causes, the larger BIC gain."""
 
 CV_FOLDS = 10
 """Held-out folds (blocks of consecutive windows in time); fewer windows: leave one out."""
@@ -55,8 +57,10 @@ def variance(chi2, dof, nu):
     When the model's own chi²/dof is within what noise gives (its F(dof, nu) law, or chi²
     for a known noise level, at ``P_SUPPORT``), the model fits: the measured noise level is
     pooled with it, (chi² + nu) / (dof + nu), with dof + nu degrees of freedom (1 and inf
-    for a known level). Otherwise a disagreement is still unexplained and is not taken for
-    noise: chi²/dof with dof degrees of freedom.
+    for a known level), but never below the model's own chi²/dof (a scatter from a few
+    degrees of freedom that happens to be high is not pooled away). Otherwise a
+    disagreement is still unexplained and is not taken for noise: chi²/dof with dof degrees
+    of freedom. nu = 0 pools nothing.
 
     :param chi2: (R,) chi² of the model. :param dof: its degrees of freedom (scalar or (R,)).
     :param nu: noise level's degrees of freedom (inf: known).
@@ -71,7 +75,7 @@ def variance(chi2, dof, nu):
     else:
         fits = stats.chi2.sf(chi2, dof) >= P_SUPPORT
         pooled = np.ones_like(own)
-    return np.where(fits, pooled, own), np.where(fits, dof + nu, dof)
+    return np.where(fits, np.maximum(pooled, own), own), np.where(fits, dof + nu, dof)
 
 
 def support_stats(chi2_without, chi2_with, k, dof_with, n, nu):

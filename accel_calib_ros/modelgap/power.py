@@ -122,7 +122,10 @@ class Design:
     """
 
     def __init__(self, fits, final, names, extra=None, coloured=False):
+        # nu: the criterion's pooling (as on the session); noise_dof: the noise level's own
+        # uncertainty, drawn per replicate and in the null limit.
         self.fits, self.final, self.n, self.nu = fits, final, fits.n, fits.nu
+        self.noise_dof = fits.noise_dof
         self.coloured = coloured
         self.grid = WorstGrid(final.model, final.fit.x, fits.c, SIM_CONDITIONS, SIM_DIRECTIONS,
                               SIM_DIRECTIONS)
@@ -133,7 +136,7 @@ class Design:
         self.q = orthonormal(cols)
         self.dof = self.n - self.q.shape[1] - searched
         self.base_maps = fold_maps(self.q, self.folds)
-        self.limit = null_gap_limit(self.dof, self.nu)
+        self.limit = null_gap_limit(self.dof, self.noise_dof)
         self.names = list(names)
         self.testable = [n for n in names if self.dof - self._size(n) >= 2]
         self.options = {n: [Binding(self, b) for b in _bindings(EFFECTS[n], fits.c)]
@@ -337,7 +340,7 @@ def replay(design, y):
                 b = stack.options[0]
                 k2 = walk_rate_low(b.effect.cosines(params), b.effect.cosines(b.coef_var)[None],
                                    b.effect.brownian(design.fits.c.time)[0])
-                p_walk = walk_smoothness_p(chosen[where], k2, b.walk(), design.nu)
+                p_walk = walk_smoothness_p(chosen[where], k2, b.walk(), design.noise_dof)
                 veto[where] = np.where(p_walk < P_SUPPORT, 'too smooth', '')
         trials.append(Trial(name, EFFECTS[name].variable, k[pick], chosen,
                             design.dof - k[pick], worst, cv, veto))
@@ -372,9 +375,9 @@ class Simulation:
         self.design, self.name, self.excess = design, name, excess
         n, count = design.n, REPLICATES
         self.noise = rng.standard_normal((count, n))
-        if np.isfinite(design.nu):
-            self.noise /= np.sqrt(rng.chisquare(max(design.nu, 1.0), count)
-                                  / max(design.nu, 1.0))[:, None]
+        if np.isfinite(design.noise_dof):
+            self.noise /= np.sqrt(rng.chisquare(max(design.noise_dof, 1.0), count)
+                                  / max(design.noise_dof, 1.0))[:, None]
         if excess > 0:
             self.noise += rng.standard_normal((count, n)) * excess / design.s[None, :]
         self.shape = np.zeros((count, n))
@@ -438,7 +441,8 @@ class Simulation:
                 rest = y_res[idx] - fitted[j][idx]
                 dof = float(np.mean(trials[j].dof))
                 sx2 = _excess(rest * d.s, d.s[None, :], dof)
-                sx2 = np.where(np.sum(rest ** 2, axis=1) / dof > null_gap_limit(dof, d.nu) ** 2,
+                sx2 = np.where(np.sum(rest ** 2, axis=1) / dof
+                               > null_gap_limit(dof, d.noise_dof) ** 2,
                                sx2, 0.0)
                 signal = np.sqrt(np.mean((fitted[j][idx] * d.s) ** 2, axis=1))
                 kept[idx] = signal >= SLOW_FACTOR * np.sqrt(sx2)

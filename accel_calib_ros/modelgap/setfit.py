@@ -86,13 +86,19 @@ class SessionFits:
 
     :param baseline: 'ml' or 'gn'. :param c: model.Conditions.
     :param start: baseline parameter vector to start from.
-    :param threshold: practical threshold, mg. :param nu: noise level's degrees of freedom.
+    :param threshold: practical threshold, mg.
+    :param nu: degrees of freedom of the noise level the criterion pools with a model that
+        fits (``criterion.variance``): the measured noise level's; 0 when the noise inside
+        the windows is correlated, since noise slower than a window then escapes it and
+        only the model's own residual scatter can be trusted.
+    :param noise_dof: the measured noise level's degrees of freedom (default ``nu``).
     :param veto: callable(name, SetFit) -> '' or the reason a measurement contradicts the
         effect as fitted in that set (the still data, a walk's roughness).
     """
 
-    def __init__(self, baseline, c, start, threshold, nu, veto=None):
+    def __init__(self, baseline, c, start, threshold, nu, veto=None, noise_dof=None):
         self.baseline, self.c, self.threshold, self.nu = baseline, c, threshold, nu
+        self.noise_dof = nu if noise_dof is None else noise_dof
         self.n = len(c.readings)
         self.veto = veto or (lambda name, setfit: '')
         self.folds = make_folds(c.time)

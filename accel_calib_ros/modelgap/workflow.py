@@ -114,8 +114,11 @@ def _search(windows, baseline, gravity, rate_hz, noise, min_effect_mg, max_steps
     accuracy, noise_only = _fit_accuracy_mg(windows, gravity, baseline, rate_hz)
     threshold = (float(min_effect_mg) if min_effect_mg is not None
                  else max(MIN_EFFECT_MG, noise_only if np.isfinite(noise_only) else 0.0))
-    fits = SessionFits(baseline, c, model_start(baseline, start_cal), threshold, noise.dof,
-                       veto=_contradiction(c, still, noise.dof))
+    # A model that fits is judged with the within-window noise level pooled in, unless that
+    # noise is correlated: noise slower than a window then escapes the level (step 2).
+    pooled = 0.0 if noise.coloured else noise.dof
+    fits = SessionFits(baseline, c, model_start(baseline, start_cal), threshold, pooled,
+                       veto=_contradiction(c, still, noise.dof), noise_dof=noise.dof)
     base = fits.fit(())
     model, fit = base.model, base.fit
     has_temp = bool(np.all(np.isfinite(np.asarray(windows.temp, float))))
@@ -298,7 +301,7 @@ def _cross_axis_evidence(ml, search):
     except (ValueError, np.linalg.LinAlgError):
         return {'significant': False, 'p': 1.0, 'worst_case_mg': 0.0}
     F, p, bic = (float(v[0]) for v in support_stats(
-        [fit_gn.chi2], [fit_ml.chi2], 3, fit_ml.dof, len(c.readings), search['noise'].dof))
+        [fit_gn.chi2], [fit_ml.chi2], 3, fit_ml.dof, len(c.readings), ml.session_fits.nu))
     worst = 1000.0 * float(np.max(np.abs(T[np.triu_indices(3, 1)]) / np.diag(T)[[0, 0, 1]]))
     significant = bool(p < P_SUPPORT and bic > 0 and worst > ml.threshold_mg)
     return {'significant': significant, 'p': p, 'F': F, 'delta_bic': bic,
