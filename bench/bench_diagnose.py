@@ -956,7 +956,10 @@ def calibration(trials):
           'or reported as the alternative of a confounded effect named in its place')
     print(f'  {"noise class":38s} {"null verdict":>22s} {"stated (median mg)":>40s} '
           f'{"detected at stated":>18s} {"none stated":>11s}')
+    only = os.environ.get('CALIBRATION_ONLY')
     for label, kw in calibration_classes():
+        if only and only not in label:
+            continue
         verdicts, stated, hits, tried, unstated = [], {}, 0, 0, 0
         for k in range(trials):
             seed = zlib.crc32(f'calibration {label} {k}'.encode())

@@ -185,16 +185,19 @@ def _naming_power(result):
         result.naming_power = {}
         return
     fits = result.session_fits
+    # The scatter beyond the within-window level is simulated too when the null uses the
+    # scatter between windows, when the gap stays open, and when the noise inside the
+    # windows is correlated (noise slower than a window escapes the level, step 2).
+    coloured = bool(result.window_noise.coloured)
     excess = (result.excess_scatter()
-              if result.noise_source == 'between windows' or not result.statistically_explained
-              else 0.0)
+              if (result.noise_source == 'between windows' or coloured
+                  or not result.statistically_explained) else 0.0)
     extra = None
     if result.baseline == 'gn' and (result.ml_check or {}).get('checked'):
         extra = fits._columns(result.final_set, EFFECTS['nonorthogonality'])
     try:
         result.naming_power = calibrate_power(
-            fits, result.final_set, names, coloured=bool(result.window_noise.coloured),
-            excess=excess, ml_extra=extra)
+            fits, result.final_set, names, coloured=coloured, excess=excess, ml_extra=extra)
     except (ValueError, np.linalg.LinAlgError):
         result.naming_power = None
 
