@@ -369,12 +369,13 @@ class Simulation:
 
     :param design: Design. :param name: the effect. :param rng: Generator.
     :param excess: scatter per window beyond the measured noise to add, m/s² (0: none).
+    :param scale: variance factor of the noise over the measured level (1: as measured).
     """
 
-    def __init__(self, design, name, rng, excess=0.0):
+    def __init__(self, design, name, rng, excess=0.0, scale=1.0):
         self.design, self.name, self.excess = design, name, excess
         n, count = design.n, REPLICATES
-        self.noise = rng.standard_normal((count, n))
+        self.noise = rng.standard_normal((count, n)) * np.sqrt(scale)
         if np.isfinite(design.noise_dof):
             self.noise /= np.sqrt(rng.chisquare(max(design.noise_dof, 1.0), count)
                                   / max(design.noise_dof, 1.0))[:, None]
@@ -496,7 +497,7 @@ def _ladder(sim, threshold, ml):
     return out
 
 
-def calibrate_power(fits, final, names, coloured=False, excess=0.0, ml_extra=None):
+def calibrate_power(fits, final, names, coloured=False, excess=0.0, ml_extra=None, scale=1.0):
     """
     Return the naming power of each effect in ``names`` on this session's design.
 
@@ -505,6 +506,8 @@ def calibrate_power(fits, final, names, coloured=False, excess=0.0, ml_extra=Non
     :param coloured: the noise inside the windows is correlated (the slow-noise check acts).
     :param excess: scatter per window beyond the measured noise, m/s² (when the null uses
         the scatter between windows).
+    :param scale: variance factor of the noise over the measured level (the final model's
+        own scatter when the noise inside the windows is correlated).
     :param ml_extra: for a gn baseline, (N, 3) columns of the cross-axis terms ml adds (the
         ml confirmation is replayed too), else None.
     :returns: dict name -> {'min_named_mg': size or None, 'rate': share named at it (as
@@ -524,6 +527,6 @@ def calibrate_power(fits, final, names, coloured=False, excess=0.0, ml_extra=Non
             out[name] = {'min_named_mg': None, 'min_noticed_mg': None,
                          'confounded_with': design.confounded[name]}
             continue
-        sim = Simulation(design, name, rng, excess)
+        sim = Simulation(design, name, rng, excess, scale)
         out[name] = _ladder(sim, fits.threshold, ml)
     return out

@@ -185,19 +185,22 @@ def _naming_power(result):
         result.naming_power = {}
         return
     fits = result.session_fits
-    # The scatter beyond the within-window level is simulated too when the null uses the
-    # scatter between windows, when the gap stays open, and when the noise inside the
-    # windows is correlated (noise slower than a window escapes the level, step 2).
+    # The scatter beyond the within-window level is simulated too: added to every window
+    # when the null uses the scatter between windows or the gap stays open; when the noise
+    # inside the windows is correlated (noise slower than a window may escape the level,
+    # step 2) and the gap is within the noise, the noise is scaled to the final model's
+    # own scatter (gap², at least 1).
     coloured = bool(result.window_noise.coloured)
-    excess = (result.excess_scatter()
-              if (result.noise_source == 'between windows' or coloured
-                  or not result.statistically_explained) else 0.0)
+    open_gap = result.noise_source == 'between windows' or not result.statistically_explained
+    excess = result.excess_scatter() if open_gap else 0.0
+    scale = max(1.0, result.gap_after ** 2) if coloured and not open_gap else 1.0
     extra = None
     if result.baseline == 'gn' and (result.ml_check or {}).get('checked'):
         extra = fits._columns(result.final_set, EFFECTS['nonorthogonality'])
     try:
         result.naming_power = calibrate_power(
-            fits, result.final_set, names, coloured=coloured, excess=excess, ml_extra=extra)
+            fits, result.final_set, names, coloured=coloured, excess=excess, ml_extra=extra,
+            scale=scale)
     except (ValueError, np.linalg.LinAlgError):
         result.naming_power = None
 
