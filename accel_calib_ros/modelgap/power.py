@@ -75,7 +75,7 @@ class Binding:
         self.k = (len(effect.param_names) + effect.searched
                   - sum(design.final.k(n) for n in nested))
         self.coef_var = np.sum(self.pinv ** 2, axis=1)
-        self._maps = self._worst = self._walk = None
+        self._maps = self._worst = self._walk = self._own = None
         self.design = design
 
     @property
@@ -94,8 +94,20 @@ class Binding:
         """
         if self._worst is None:
             d = self.design
-            self._worst = -d.grid.matrix(self.effect, full=True) - d.absorbed @ self.cols
+            self._worst = self.own - d.absorbed @ self.cols
         return self._worst
+
+    @property
+    def own(self):
+        """
+        Return the effect's own error per unit parameter, (D, 3, k) mg.
+
+        ``worst`` without what the model takes up: the size is the smaller of the two, as
+        in the fit (``SessionFits.size``).
+        """
+        if self._own is None:
+            self._own = -self.design.grid.matrix(self.effect, full=True)
+        return self._own
 
     def walk(self):
         """Return ``agreement.walk_design`` for a fit that holds these terms."""
@@ -232,7 +244,7 @@ class Stack:
         self.idx = idx
         self.options = [options[j] for j in idx]
         self.u = np.stack([b.u for b in self.options])             # (B, N, k)
-        self._pinv = self._worst = self._maps = None
+        self._pinv = self._worst = self._maps = self._own = None
 
     @property
     def pinv(self):
@@ -245,6 +257,12 @@ class Stack:
         if self._worst is None:
             self._worst = np.stack([b.worst for b in self.options])   # (B, D, 3, k)
         return self._worst
+
+    @property
+    def own(self):
+        if self._own is None:
+            self._own = np.stack([b.own for b in self.options])
+        return self._own
 
     @property
     def maps(self):
@@ -287,7 +305,8 @@ def _evidence_of(stack, pick, y, folds):
             cv[rows, f] = np.where(np.all(np.isfinite(held), axis=1),
                                    np.sum(held ** 2, axis=1), np.inf)
         params[rows] = y[rows] @ stack.pinv[j].T
-        worst[rows] = worst_case_mg(stack.worst[j], params[rows])
+        worst[rows] = np.minimum(worst_case_mg(stack.worst[j], params[rows]),
+                                 worst_case_mg(stack.own[j], params[rows]))
     return signal, cv, params, worst
 
 
@@ -391,7 +410,7 @@ class Simulation:
             b = options[j]
             idx = np.flatnonzero(truth == j)
             u = rng.standard_normal((len(idx), b.cols.shape[1]))
-            u /= worst_case_mg(b.worst, u)[:, None]
+            u /= np.minimum(worst_case_mg(b.worst, u), worst_case_mg(b.own, u))[:, None]
             self.shape[idx] = u @ b.cols.T
 
     def _walk(self, rng):

@@ -148,7 +148,7 @@ def member_support(fits, chosen, name):
         return True, None, None
     k = full.k(name) - sum(without.k(n) for n in simpler)
     trial = Trial(name, EFFECTS[name].variable, k, [full.chi2], full.dof,
-                  [fits.contribution(full, without)], [fits.cv(full)],
+                  [fits.size(full, without, name)], [fits.cv(full)],
                   [fits.veto(name, full)])
     evidence = evaluate(np.array([without.chi2]), fits.cv(without)[None, :], [trial], fits.n,
                         fits.nu, fits.threshold)

@@ -253,6 +253,18 @@ class SessionFits:
                 setfit.model, setfit.fit.x, self.c, name, setfit.params(name))
         return setfit._worst[name]
 
+    def size(self, full, without, name):
+        """
+        Return the size of effect ``name`` for the practical threshold, mg.
+
+        The smaller of its own worst case (``worst``) and what it changes beside the others
+        (``contribution``): it matters only when both exceed the threshold. The first alone
+        is inflated when two nearly collinear effects carry large opposite parameters; the
+        second alone when the baseline is poorly determined in directions the session did
+        not hold (its shift there is not the effect).
+        """
+        return min(self.worst(full, name), self.contribution(full, without))
+
     def contribution(self, full, without):
         """
         Return how much a set changes the corrected acceleration over another, worst case, mg.
@@ -308,7 +320,7 @@ class SessionFits:
         base = self.fit(names)
         k = setfit.k(name) - sum(base.k(n) for n in replaced)
         trial = Trial(name, EFFECTS[name].variable, k, [setfit.chi2], setfit.dof,
-                      [self.contribution(setfit, base)], [self.cv(setfit)],
+                      [self.size(setfit, base, name)], [self.cv(setfit)],
                       [self.veto(name, setfit)])
         return trial, setfit
 

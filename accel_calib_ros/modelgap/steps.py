@@ -34,7 +34,7 @@ def record_steps(result, chosen):
     for i, name in enumerate(chosen):
         before, after = chain[i], chain[i + 1]
         trial = Trial(name, EFFECTS[name].variable, after.k(name), [after.chi2], after.dof,
-                      [fits.contribution(after, before)], [fits.cv(after)], [''])
+                      [fits.size(after, before, name)], [fits.cv(after)], [''])
         ev = evaluate(np.array([before.chi2]), fits.cv(before)[None, :], [trial], fits.n,
                       fits.nu, fits.threshold)
         # The effect as found: fitted jointly with all the others in the final set.
