@@ -1,155 +1,110 @@
 """
-Does a supported effect agree with all the evidence? The still data, the probes, its rivals.
+Measurements that contradict an effect as fitted: the still data, a random walk's roughness.
 
-``disagreement`` gives the reason a candidate is not named (or ''): a probe of another
-variable that explains the disagreement better, a temperature that a time effect only
-follows, the drift the still data show (``still_drift``), a single jump in time, the
-lag's two-term confounder, a straight drift before a wander.
+Neither compares two effects: each asks whether one fitted effect is what its own physics
+says it is. ``still_contradicts``: a fitted linear drift against the drift the still
+windows show directly (``still_drift``). ``walk_too_smooth``: a fitted random walk whose
+smooth terms leave a residual far smoother than a random walk of that size would.
+``best_step`` is the single jump in time that ``pruning`` checks a time effect against
+when the gap is not closed.
 """
 
 import numpy as np
 from scipy import stats
 
-from .effects import EFFECTS, G0
-from .model import fit_model
+from .criterion import P_SUPPORT
+from .effects import G0
 from .noise import RAMP_TEMP_C
-from .probes import added_on_top, delta_bic, FAMILY, residual_probes
-
-P_SUPPORT = 1e-3
-"""Largest F-test p-value for which an added effect counts as supported."""
-
-COLLINEAR = 0.9
-"""Supported runner-up whose signature correlates more than this with the winner's is a rival."""
+from .probes import delta_bic
 
 
-def disagreement(cand, alternatives, model, fit, c, still):
+def walk_design(basis, offset_jac, time, start):
     """
-    Return why a supported candidate disagrees with the rest of the evidence, or ''.
+    Return what a random walk's rough part does to the residuals of a fit that holds its terms.
 
-    - A probe of another variable (``probes.FAMILY``) that explains the current
-      disagreement better (larger ΔBIC), stays significant after the candidate is added,
-      and leaves the candidate nothing to add on top of it (``added_on_top``), while the
-      candidate's fitted signal lies mostly outside the probe's span (more than
-      ``COLLINEAR`` of it inside means the two are confounded in this session, e.g. a
-      temperature that is a smooth function of time, and the probe cannot judge): the
-      candidate is only a projection of a dependence on that variable.
-    - A time effect against the temperature probe: a wander that is a function of the
-      temperature in this session and no better than the temperature probe is left to
-      the temperature (a recorded cause comes first).
-    - A time effect (or a lagged temperature, which acts through time) against the still
-      windows (``still_drift``): a drift that the still data contradict, or a single jump
-      in time (a mount shifting) that explains the disagreement better than a drift, a
-      wander or a lag does.
+    A walk of K_i per √s on axis i has covariance K_i² min(t_a - t0, t_b - t0) between
+    windows; seen along gravity and with what the fit absorbs (its Jacobian's span, the
+    walk's smooth terms included) projected out, it adds A_i = P (J_i J_iᵀ ∘ M) P per
+    unit K_i² to the residual covariance.
+
+    :param basis: (N, p) orthonormal basis of the fit's Jacobian.
+    :param offset_jac: (N, 3) change of the normalised residuals per unit offset per axis.
+    :param time: (N,) window times, s. :param start: the walk's start, s.
+    :returns: (tr A_i (3,), tr A_i A_j (3, 3), residual dof).
     """
-    name = cand['effect']
-    family = FAMILY.get(EFFECTS[name].variable, EFFECTS[name].variable)
-    q = np.linalg.qr(fit.jac)[0] if fit.jac is not None and fit.jac.shape[1] else None
-    j = model.effect_jacobian(fit.x, c, cand['bound'])
-    if q is not None:
-        j = j - q @ (q.T @ j)
-    # The candidate's fitted signal in the current residual space (linearised).
-    signal = j @ np.linalg.lstsq(j, fit.residuals, rcond=None)[0]
-    after = None
-    for probe, alt in alternatives.items():
-        if FAMILY[probe] == family or not alt['significant'] or alt['delta_bic'] <= cand['bic']:
-            continue
-        u = alt['_basis']
-        inside = float(np.sum((u.T @ signal) ** 2) / max(signal @ signal, 1e-300))
-        if inside > COLLINEAR:
-            continue        # confounded here (temperature smooth in time): no verdict
-        if after is None:
-            after = residual_probes(cand['model'], cand['fit'], c)
-        if not after.get(probe, {}).get('significant'):
-            continue
-        on_top = added_on_top(fit.residuals, fit.chi2, fit.dof, u, j)
-        if on_top >= P_SUPPORT:
-            return (f'the {probe} probe explains the disagreement better (ΔBIC '
-                    f'{alt["delta_bic"]:.0f} against {cand["bic"]:.0f}), stays significant '
-                    f'after {name} (p = {after[probe]["p"]:.1e}), and {name} adds nothing '
-                    f'beside it (p = {on_top:.2g})')
-    if family != 'time' and not cand['bound'].searched:
-        return ''
-    temp = alternatives.get('temperature') if family == 'time' else None
-    if temp and temp['significant'] and temp['delta_chi2'] >= cand['drop']:
-        u = temp['_basis']
-        inside = float(np.sum((u.T @ signal) ** 2) / max(signal @ signal, 1e-300))
-        if inside > COLLINEAR:
-            return (f'it follows the temperature: the temperature probe explains as much '
-                    f'(Δχ² {temp["delta_chi2"]:.0f} against {cand["drop"]:.0f}) and '
-                    f'{100 * inside:.0f} % of its signal is a function of temperature in this '
-                    'session; a recorded cause comes before a wander in time')
-    if name == 'bias_drift' and still is not None:
-        reason = still_contradicts(cand, still)
-        if reason:
-            return reason
-    step = best_step(model, fit, c)
-    if step and step['delta_bic'] > cand['bic']:
-        on_top = added_on_top(fit.residuals, fit.chi2, fit.dof, step['basis'], j)
-        if on_top >= P_SUPPORT:
-            return (f'a single jump in time at t = {step["time"]:+.0f} s (about '
-                    f'{step["size_mg"]:.2g} mg RMS; the mount shifting?) explains the '
-                    'disagreement '
-                    f'better (ΔBIC {step["delta_bic"]:.0f} against {cand["bic"]:.0f}) than '
-                    f'{name}, which adds nothing beside it (p = {on_top:.2g})')
-    return ''
+    n = len(time)
+    p = np.eye(n) - basis @ basis.T
+    m = np.minimum.outer(time - start, time - start)
+    a = [p @ (np.outer(offset_jac[:, i], offset_jac[:, i]) * m) @ p for i in range(3)]
+    traces = np.array([np.trace(x) for x in a])
+    cross = np.array([[np.sum(x * y) for y in a] for x in a])
+    return traces, cross, float(np.trace(p))
 
 
-def lag_against_pair(cand, tried, model, fit, c):
+def walk_rate_low(coef, coef_var, factors):
     """
-    Return why a lagged temperature is not needed, or ''.
+    Return a 99.9 % lower bound of K_i² per axis from a walk's fitted cosine terms, (R, 3).
 
-    A lag shows as the offset following temperature and its rate of change; an offset
-    that follows the temperature plus a drift in time can look much the same. The lag is
-    named only when it explains the disagreement better (ΔBIC) than ``temperature_bias``
-    and ``bias_drift`` together, its two-term confounder.
+    A walk of K per √s gives each cosine coefficient a variance K² f_k
+    (``BiasRandomWalk.brownian``: about 2 T / (k pi)²): each fitted coefficient, less its
+    own estimation variance, over f_k estimates K²; their mean over the 3d terms, times
+    3d / chi²_3d(0.999), bounds K² from below.
+
+    :param coef: (R, 3, d) fitted coefficients. :param coef_var: their variances, same shape
+        or broadcastable. :param factors: (d,) the f_k.
     """
-    if cand['effect'] != 'temperature_lag':
-        return ''
-    names = [t['effect'] for t in tried]
-    if 'temperature_bias' not in names or 'bias_drift' not in names:
-        return ''
-    pair = [EFFECTS['temperature_bias'].bind(c), EFFECTS['bias_drift'].bind(c)]
-    start = np.concatenate([fit.x, np.zeros(6)])
-    try:
-        _, both = fit_model(model.baseline, fit.effects + pair, c, start)
-    except (ValueError, np.linalg.LinAlgError):
-        return ''
-    bic = delta_bic(fit.chi2, fit.chi2 - both.chi2, 6, len(c.readings))
-    if bic < cand['bic']:
-        return ''
-    return (f'an offset following the temperature plus a drift in time explains the '
-            f'disagreement as well (ΔBIC {bic:.0f} against {cand["bic"]:.0f} for a lag of '
-            f'tau = {cand["bound"].tau:.3g} s)')
+    d = coef.shape[-1]
+    k2 = np.mean(np.maximum(coef ** 2 - coef_var, 0.0) / factors, axis=-1)
+    return k2 * (3 * d) / stats.chi2.ppf(1.0 - P_SUPPORT, 3 * d)
 
 
-def walk_against_drift(cand, tried, model, fit, c):
+def walk_smoothness_p(chi2, k2, design, nu):
     """
-    Return why a wandering offset is not needed beside a straight drift, or ''.
+    Return P(chi² this low | the fitted walk is a random walk), (R,).
 
-    A random walk's smooth terms also follow a straight drift; the walk comes after
-    ``bias_drift``, the simpler time effect, unless it adds significantly to it (F-test,
-    ΔBIC). (It is named still when the drift turns out not to hold.)
+    The walk's rough part (what its smooth terms cannot follow) adds sum_i K_i² A_i to the
+    residual covariance (``walk_design``); chi² then has mean dof + sum K_i² tr A_i and the
+    variance of a quadratic form in Gaussians (plus what the noise level's own uncertainty
+    adds), matched to a scaled chi² (Satterthwaite). A wander whose terms leave a residual at
+    the noise level while its size says it should be rough was not a walk: it followed a
+    smooth dependence (another effect's leftovers).
     """
-    if cand['effect'] != 'bias_random_walk':
+    traces, cross, dof = design
+    k2 = np.atleast_2d(k2)
+    mean = dof + k2 @ traces
+    var = 2.0 * (dof + 2.0 * k2 @ traces + np.einsum('ri,ij,rj->r', k2, cross, k2))
+    if np.isfinite(nu):
+        var = var + 2.0 * dof ** 2 / max(nu, 1.0)
+    scale = var / (2.0 * mean)
+    return stats.chi2.cdf(np.asarray(chi2, float) / scale, 2.0 * mean ** 2 / var)
+
+
+def walk_too_smooth(model, fit, c, basis, nu):
+    """
+    Return why a fitted bias_random_walk is not a random walk, or ''.
+
+    See ``walk_smoothness_p``: too smooth at p < ``P_SUPPORT``.
+    """
+    walk = model.objects['bias_random_walk']
+    T, _, params = model.split(fit.x)
+    coef = walk.cosines(params['bias_random_walk'])
+    index = model.index('bias_random_walk')
+    cov = np.linalg.pinv(fit.jac.T @ fit.jac)
+    coef_var = walk.cosines(np.diag(cov)[index:index + len(walk.param_names)])
+    k2 = walk_rate_low(coef[None], coef_var[None], walk.brownian(c.time)[0])
+    a = model.true_accel(fit.x, c)
+    along = np.linalg.solve(T.T, (a / np.linalg.norm(a, axis=1)[:, None]).T).T
+    s = np.sqrt(np.sum((along * c.sigma) ** 2, axis=1))
+    design = walk_design(basis, -along / s[:, None], c.time, walk.start)
+    p = float(walk_smoothness_p([fit.chi2], k2, design, nu)[0])
+    if p >= P_SUPPORT:
         return ''
-    drift = [t for t in tried if t['effect'] == 'bias_drift']
-    if not drift or not drift[0]['significant']:
-        return ''
-    both = fit.effects + [drift[0]['bound'], cand['bound']]
-    k = len(cand['bound'].param_names)
-    start = np.concatenate([drift[0]['fit'].x, np.zeros(k)])
-    try:
-        _, joint = fit_model(model.baseline, both, c, start)
-    except (ValueError, np.linalg.LinAlgError):
-        return ''
-    drop = drift[0]['fit'].chi2 - joint.chi2
-    F = (drop / k) / max(joint.chi2 / max(joint.dof, 1), 1e-300)
-    p = float(stats.f.sf(F, k, max(joint.dof, 1)))
-    bic = delta_bic(drift[0]['fit'].chi2, drop, k, len(c.readings))
-    if p < P_SUPPORT and bic > 0:
-        return ''
-    return (f'a straight drift in time explains it as well: the wander adds nothing beside '
-            f'bias_drift (p = {p:.2g}, ΔBIC {bic:.0f})')
+    rate = 1000.0 * np.sqrt(np.max(k2)) / G0 / np.max(np.abs(np.diag(T)))
+    expected = design[2] + float((k2 @ design[0])[0])
+    return (f'too smooth for a random walk: a walk of at least {rate:.2g} mg/√s (the 99.9 % '
+            f'lower bound from its fitted terms) would leave chi² about {expected:.0f} beyond '
+            f'its smooth terms, but {fit.chi2:.0f} is left (p = {p:.1e}): its terms follow a '
+            'smooth dependence, not a wander')
 
 
 def best_step(model, fit, c):
@@ -190,7 +145,7 @@ def best_step(model, fit, c):
     return best
 
 
-def still_contradicts(cand, still):
+def still_contradicts(model, fit, name, still):
     """
     Return why the still windows contradict a fitted linear drift, or ''.
 
@@ -198,12 +153,11 @@ def still_contradicts(cand, still):
     windows whose temperature held steady) against the fitted one, each with its
     covariance: chi² with 3 degrees of freedom, contradicted below ``P_SUPPORT``.
     """
-    fit = cand['fit']
-    model = cand['model']
-    params = model.split(fit.x)[2][cand['effect']]
+    params = model.split(fit.x)[2][name]
     k = len(params)
-    jac = fit.jac
-    cov = np.linalg.pinv(jac.T @ jac)[-k:, -k:] * max(fit.gap ** 2, 1.0)
+    index = model.index(name)
+    cov = (np.linalg.pinv(fit.jac.T @ fit.jac)[index:index + k, index:index + k]
+           * max(fit.gap ** 2, 1.0))
     delta = params - still['slope']
     total = cov + np.diag(np.asarray(still['se']) ** 2)
     chi2 = float(delta @ np.linalg.solve(total, delta))

@@ -50,6 +50,8 @@ class Effect:
     """The session variable the effect's residual follows (a ``diagnose`` probe name)."""
     searched = 0
     """Parameters chosen by a search before the fit (a time constant): counted in tests."""
+    nests = ()
+    """Library effects this one contains as a special case (it replaces them in a set)."""
 
     def applicable(self, context, baseline):
         """Return '' when the session can show this effect, else the reason it cannot."""
@@ -221,26 +223,37 @@ class BiasDrift(PerAxisEffect):
         return f'{60000 * value / gravity:+.3f} mg/min'
 
 
-def lagged(time, temp, tau):
+def start_slope(time, temp):
+    """Return the temperature's rate at the start of the session, °C/s (first three windows)."""
+    k = min(3, len(time))
+    if k < 2 or np.ptp(time[:k]) <= 0:
+        return 0.0
+    return float(np.polyfit(time[:k] - time[0], temp[:k], 1)[0])
+
+
+def lagged(time, temp, tau, behind=0.0):
     """
     Return a first-order lag of a temperature sampled at ``time``, same shape.
 
     The temperature is taken as linear between the samples (window mid times); the
-    lagged one starts at the first temperature (in equilibrium) and follows
-    tau dθ_lag/dt = θ - θ_lag exactly on each linear piece:
+    lagged one starts ``behind`` °C below the first temperature (0: in equilibrium) and
+    follows tau dθ_lag/dt = θ - θ_lag exactly on each linear piece:
     θ_lag(t1) = θ1 - s tau + (θ_lag(t0) - θ0 + s tau) exp(-(t1 - t0) / tau), s the slope.
+    ``tau`` and ``behind`` may be arrays of the same shape (B,): the result is then (B, N).
 
     :param time: (N,) s, increasing. :param temp: (N,) °C. :param tau: time constant, s.
     """
-    out = np.empty(len(temp))
-    out[0] = temp[0]
+    tau = np.asarray(tau, float)
+    behind = np.broadcast_to(np.asarray(behind, float), tau.shape)
+    out = np.empty(tau.shape + (len(temp),))
+    out[..., 0] = temp[0] - behind
     dt = np.diff(time)
-    decay = np.exp(-dt / tau)
     with np.errstate(divide='ignore', invalid='ignore'):
         slope = np.where(dt > 0, np.diff(temp) / np.where(dt > 0, dt, 1.0), 0.0)
     for k in range(1, len(temp)):
         st = slope[k - 1] * tau
-        out[k] = temp[k] - st + (out[k - 1] - temp[k - 1] + st) * decay[k - 1]
+        decay = np.exp(-dt[k - 1] / tau)
+        out[..., k] = temp[k] - st + (out[..., k - 1] - temp[k - 1] + st) * decay
     return out
 
 
@@ -251,14 +264,17 @@ class TemperatureLag(PerAxisEffect):
     param_names = ('c_x', 'c_y', 'c_z')
     unit = 'm/s² per °C (of the lagged temperature)'
     variable = 'temperature'
-    searched = 1
+    searched = 2
     label = 'offset drift with the lagged temperature'
 
     TAU_GRID = 16
     """Time constants tried (log-spaced) before the best one is refined."""
 
-    def __init__(self, tau=None, time=None, lag=None):
-        self.tau, self._time, self._lag = tau, time, lag
+    START_GRID = (0.0, 0.03, 0.1, 0.2, 0.35, 0.6, 1.0)
+    """How far the die lags at the first window, as a share of slope x tau (see ``bind``)."""
+
+    def __init__(self, tau=None, time=None, lag=None, start=0.0):
+        self.tau, self._time, self._lag, self.start = tau, time, lag, start
 
     def applicable(self, context, baseline):
         reason = TemperatureBias.applicable(self, context, baseline)
@@ -280,29 +296,69 @@ class TemperatureLag(PerAxisEffect):
         low = min(max(0.01 * span, 2.0 * spacing), 0.5 * span)
         return np.geomspace(low, span, self.TAU_GRID)
 
-    def bind(self, c, tau=None):
-        """Return the effect bound to this session's temperature history with time constant tau."""
+    def bind(self, c, tau=None, start=0.0):
+        """
+        Return the effect bound to this session's temperature history.
+
+        :param tau: time constant, s (default the middle of ``tau_range``).
+        :param start: the die's lag behind the reported temperature at the first window,
+            as a share of what a steady rise at the starting rate s would give (s tau): 0
+            when the die was in equilibrium there, 1 when the temperature had been rising
+            like that for much longer than tau (a warm-up under way for L seconds gives
+            1 - exp(-L / tau)). Unknown, so searched with tau.
+        """
         tau = float(np.median(self.tau_range(c))) if tau is None else float(tau)
+        return self._bound(c, np.array([tau]), np.array([start]))[0]
+
+    def _bound(self, c, taus, starts):
         order = np.argsort(c.time, kind='stable')
         time, temp = c.time[order], c.temp[order]
-        lag = lagged(time, temp, tau)
-        return TemperatureLag(tau, time, lag - lag.mean())
+        behind = starts * start_slope(time, temp) * taus
+        lags = lagged(time, temp, taus, behind)
+        return [TemperatureLag(float(tau), time, lag - lag.mean(), float(start))
+                for tau, start, lag in zip(taus, starts, lags)]
 
-    def bindings(self, c):
-        return [self.bind(c, tau) for tau in self.tau_range(c)]
+    def bindings(self, c, starts=None):
+        """Return the grid of bindings over tau and start (``starts``: a coarser list)."""
+        starts = self.START_GRID if starts is None else starts
+        taus, starts = np.meshgrid(self.tau_range(c), starts, indexing='ij')
+        return self._bound(c, taus.ravel(), starts.ravel())
+
+    SIMULATED_STARTS = (0.0, 0.2, 1.0)
+    """The starts the naming simulation (``power``) tries: its bindings are coarser."""
+
+    def simulated_bindings(self, c):
+        """Return the bindings the naming simulation injects and searches over."""
+        return self.bindings(c, self.SIMULATED_STARTS)
 
     def search(self, c, score):
-        """Return the binding whose tau scores best: the grid, then refined between neighbours."""
+        """
+        Return the binding that scores best: the grid of (tau, start), then both refined.
+
+        The two trade off along a narrow valley (a die that starts further behind looks like
+        a longer lag for a while), so they are refined in turn, three times: tau between its
+        grid neighbours (bounded, in log), the start over [0, 1].
+        """
         from scipy import optimize
-        grid = self.tau_range(c)
-        scores = [score(self.bind(c, tau)) for tau in grid]
+        options = self.bindings(c)
+        scores = [score(b) for b in options]
         k = int(np.argmax(scores))
-        low, high = np.log(grid[max(k - 1, 0)]), np.log(grid[min(k + 1, len(grid) - 1)])
-        best = optimize.minimize_scalar(lambda v: -score(self.bind(c, np.exp(v))),
-                                        bounds=(low, high), method='bounded',
-                                        options={'xatol': 0.02})
-        tau = np.exp(best.x) if -best.fun > scores[k] else grid[k]
-        return self.bind(c, tau)
+        grid = self.tau_range(c)
+        i = k // len(self.START_GRID)
+        low, high = np.log(grid[max(i - 1, 0)]), np.log(grid[min(i + 1, len(grid) - 1)])
+        log_tau, start, top = np.log(options[k].tau), options[k].start, scores[k]
+        for _ in range(3):
+            found = optimize.minimize_scalar(lambda v: -score(self.bind(c, np.exp(v), start)),
+                                             bounds=(low, high), method='bounded',
+                                             options={'xatol': 0.005})
+            if -found.fun > top:
+                log_tau, top = found.x, -found.fun
+            found = optimize.minimize_scalar(lambda v: -score(self.bind(c, np.exp(log_tau), v)),
+                                             bounds=(0.0, 1.0), method='bounded',
+                                             options={'xatol': 0.002})
+            if -found.fun > top:
+                start, top = found.x, -found.fun
+        return self.bind(c, np.exp(log_tau), start)
 
     def columns(self, accel, temp, time, gravity=G0):
         if self._time is None:
@@ -324,19 +380,21 @@ class BiasRandomWalk(Effect):
                    'line and not with temperature)')
     unit = 'm/s²'
     variable = 'time'
+    nests = ('bias_drift',)
 
     def __init__(self, degree=None, start=0.0, span=1.0):
         self.degree, self.start, self.span = degree, start, span
 
     @property
     def param_names(self):
-        k = self.degree or 0
-        return tuple(f'o_{axis}_{j}' for axis in 'xyz' for j in range(1, k + 1))
+        if not self.degree:
+            return ()
+        return tuple(f'o_{axis}_{j}' for axis in 'xyz' for j in range(self.degree + 1))
 
     MAX_DEGREE = 4
-    """Most smooth terms per axis: they hold 87 % of a random walk's variance about its mean
-    (its cosine coefficients fall like 1/k); a dependence with more structure (a cycle, a
-    step) is left to the time probe and the step alternative."""
+    """Most cosine terms per axis (beside the trend): with it they hold most of a random
+    walk's variance about its mean (its cosine coefficients fall like 1/k); a dependence with
+    more structure (a cycle, a step) is left to the time probe and the step alternative."""
 
     @classmethod
     def degrees_for(cls, windows):
@@ -362,24 +420,52 @@ class BiasRandomWalk(Effect):
         return max(self.bindings(c), key=lambda b: score(b) - len(b.param_names) * np.log(n))
 
     def basis(self, time):
-        """Return cos(k pi u), k = 1..degree, u the time scaled to [0, 1] over the session."""
+        """
+        Return the wander's terms over the session, (N, degree + 1).
+
+        u - 1/2 (a walk's trend: its cosine series converges slowly, so the straight part
+        is a term of its own, and a plain drift is a special case) and cos(k pi u),
+        k = 1..degree, u the time scaled to [0, 1] over the session.
+        """
         u = np.clip((np.asarray(time, float) - self.start) / self.span, 0.0, 1.0)
-        return np.cos(np.pi * np.arange(1, self.degree + 1)[None, :] * u[:, None])
+        k = np.arange(1, self.degree + 1)
+        return np.column_stack([u - 0.5, np.cos(np.pi * k[None, :] * u[:, None])])
 
     def columns(self, accel, temp, time, gravity=G0):
         if self.degree is None:
             raise ValueError('bias_random_walk needs a session: use bind(conditions)')
         phi = self.basis(time)
-        k = self.degree
+        k = self.degree + 1
         cols = np.zeros((len(time), 3, 3 * k))
         for i in range(3):
             cols[:, i, i * k:(i + 1) * k] = phi
         return cols
 
+    def cosines(self, params):
+        """Return the cosine coefficients of parameters (..., 3 (d + 1)) as (..., 3, d)."""
+        p = np.asarray(params, float)
+        return p.reshape(p.shape[:-1] + (3, self.degree + 1))[..., 1:]
+
+    def brownian(self, time):
+        """
+        Return what a walk of K = 1 per √s does to these terms at window times ``time``.
+
+        (variance of each cosine coefficient (d,), mean variance per window left beyond all
+        the terms and a constant): a Brownian path from the session's start, covariance
+        min(t_a, t_b), least-squares fitted by a constant and the terms.
+        """
+        t = np.asarray(time, float) - self.start
+        m = np.minimum.outer(t, t)
+        design = np.column_stack([np.ones(len(t)), self.basis(time)])
+        a = np.linalg.pinv(design)
+        factors = np.einsum('kn,nm,km->k', a, m, a)[2:]
+        rest = np.eye(len(t)) - design @ a
+        return factors, float(np.trace(rest @ m @ rest.T)) / len(t)
+
     def wander(self, params, gravity=G0, sensitivity=(1.0, 1.0, 1.0), points=200):
         """Return the offset wander over the session, (points, 3), in g per axis."""
         phi = self.basis(self.start + self.span * np.linspace(0.0, 1.0, points))
-        coef = np.asarray(params, float).reshape(3, self.degree)
+        coef = np.asarray(params, float).reshape(3, self.degree + 1)
         path = phi @ coef.T / np.asarray(sensitivity)
         return (path - path.mean(axis=0)) / gravity
 

@@ -110,31 +110,87 @@ def fibonacci_directions(n=200):
     return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
 
 
+class WorstGrid:
+    """
+    The directions and conditions over which an effect's worst case is taken, for one fit.
+
+    The directions of gravity (``directions`` spread over the sphere plus the session's
+    own, at most ``session`` of them when given) and the temperatures and times of the
+    session (centred as in the fit, so what the baseline absorbs at the session mean is not
+    counted; at most ``max_conditions``, the extremes included).
+    """
+
+    def __init__(self, model, x, c, max_conditions=60, directions=200, session=None):
+        self.T_inv = np.linalg.inv(model.split(x)[0])
+        a_session = model.true_accel(x, c)
+        if session is not None and len(a_session) > session:
+            a_session = a_session[np.linspace(0, len(a_session) - 1, session).round().astype(int)]
+        self.dirs = np.vstack([fibonacci_directions(directions),
+                               a_session / np.linalg.norm(a_session, axis=1, keepdims=True)])
+        conds = np.unique(np.column_stack([c.temp, c.time]), axis=0)
+        if len(conds) > max_conditions:
+            keep = set(np.linspace(0, len(conds) - 1, max_conditions - 4).round().astype(int))
+            keep |= {int(np.argmin(conds[:, 0])), int(np.argmax(conds[:, 0])),
+                     int(np.argmin(conds[:, 1])), int(np.argmax(conds[:, 1]))}
+            conds = conds[sorted(keep)]
+        self.conds, self.gravity = conds, c.gravity
+
+    def rows(self):
+        """Return every (direction, temperature, time) of the grid: (D, 3), (D,), (D,)."""
+        dirs = np.repeat(self.dirs, len(self.conds), axis=0)
+        cond = np.tile(self.conds, (len(self.dirs), 1))
+        return dirs, cond[:, 0], cond[:, 1]
+
+    def matrix(self, effect, full=False):
+        """
+        Return the error per unit parameter of ``effect`` in corrected acceleration, (D, 3, k), mg.
+
+        T^-1 columns(a, θ, t) over the grid. An effect whose columns do not depend on the
+        direction (an offset) or on the conditions (a direction term) is evaluated once
+        along that axis (``full``: over every row of ``rows`` all the same). The worst case
+        of parameters p is max_D |W p| (``worst_case_mg``).
+        """
+        g, dirs, conds = self.gravity, self.dirs, self.conds
+        if full:
+            d, temp, time = self.rows()
+            cols = effect.columns(g * d, temp, time, g)
+            return 1000.0 / G0 * np.einsum('ij,njk->nik', self.T_inv, cols)
+        probe = effect.columns(g * dirs[:2], np.full(2, conds[0, 0]), np.full(2, conds[0, 1]),
+                               g)
+        by_direction = not np.allclose(probe[0], probe[1])
+        other = effect.columns(g * dirs[:1], conds[-1:, 0], conds[-1:, 1], g)
+        by_condition = not np.allclose(probe[0], other[0])
+        dirs = dirs if by_direction else dirs[:1]
+        conds = conds if by_condition else conds[:1]
+        d = np.repeat(dirs, len(conds), axis=0)
+        cond = np.tile(conds, (len(dirs), 1))
+        cols = effect.columns(g * d, cond[:, 0], cond[:, 1], g)
+        return 1000.0 / G0 * np.einsum('ij,njk->nik', self.T_inv, cols)
+
+
+def worst_case_matrix(model, x, c, effect, max_conditions=60, directions=200):
+    """Return ``WorstGrid(model, x, c, ...).matrix(effect)``, (D, 3, k) mg per unit parameter."""
+    return WorstGrid(model, x, c, max_conditions, directions).matrix(effect)
+
+
+def worst_case_mg(matrix, params):
+    """Return max_D |W p| for parameters ``params`` (k,) or (R, k): (R,) or a float, mg."""
+    p = np.atleast_2d(np.asarray(params, float))
+    err = (matrix.reshape(-1, matrix.shape[-1]) @ p.T).reshape(matrix.shape[0], 3, len(p))
+    worst = np.sqrt(np.max(np.sum(err ** 2, axis=1), axis=0))
+    return worst if np.ndim(params) > 1 else float(worst[0])
+
+
 def effect_worst_case_mg(model, x, c, name, params):
     """
     Return the largest error, mg, effect ``name`` with ``params`` makes in corrected acceleration.
 
     The error T^-1 columns(a, θ, t) p of the corrected specific force, over every
     direction of gravity (200 spread over the sphere plus the session's own) and every
-    temperature and time of the session (centred as in the fit, so what the baseline
-    absorbs at the session mean is not counted).
+    temperature and time of the session (``worst_case_matrix``).
     """
-    T = model.split(x)[0]
-    a_session = model.true_accel(x, c)
-    dirs = np.vstack([fibonacci_directions(),
-                      a_session / np.linalg.norm(a_session, axis=1, keepdims=True)])
-    conds = np.unique(np.column_stack([c.temp, c.time]), axis=0)
-    if len(conds) > 60:
-        conds = conds[np.linspace(0, len(conds) - 1, 60).round().astype(int)]
-    T_inv = np.linalg.inv(T)
     effect = model.objects.get(name_of(name)) or effect_of(name)
-    worst = 0.0
-    for temp, time in conds:
-        n = len(dirs)
-        cols = effect.columns(c.gravity * dirs, np.full(n, temp), np.full(n, time), c.gravity)
-        err = (cols @ np.asarray(params, float)) @ T_inv.T
-        worst = max(worst, float(np.max(np.linalg.norm(err, axis=1))))
-    return 1000.0 * worst / G0
+    return worst_case_mg(worst_case_matrix(model, x, c, effect), params)
 
 
 def separation_advice(a, b, c):

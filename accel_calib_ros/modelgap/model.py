@@ -68,6 +68,15 @@ class Model:
             k += size
         return T, bias, params
 
+    def index(self, name):
+        """Return where effect ``name``'s parameters start in the parameter vector."""
+        k = self.n_base
+        for entry, size in zip(self.effects, self.sizes):
+            if name_of(entry) == name:
+                return k
+            k += size
+        raise KeyError(name)
+
     def pack_baseline(self, T, bias):
         head = T[np.triu_indices(3)] if self.baseline == 'ml' else np.diag(T)
         return np.concatenate([head, bias])

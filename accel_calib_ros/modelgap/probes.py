@@ -167,7 +167,9 @@ def added_on_top(r, chi2, dof, first, second):
         u, sv, _ = np.linalg.svd(cols, full_matrices=False)
         return u[:, sv > ABSORBED * max(sv.max(), 1e-300)]
 
-    u1, u12 = span(first), span(np.hstack([first, second]))
+    # Each block on its own scale first (whitened columns are ~1/noise, bases ~1).
+    u1 = span(first)
+    u12 = span(np.hstack([u1, span(second)]))
     k = u12.shape[1] - u1.shape[1]
     rest_dof = dof - u12.shape[1]
     if k < 1 or rest_dof < 2:

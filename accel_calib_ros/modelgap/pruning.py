@@ -1,72 +1,39 @@
 """
-After the search: withdraw named effects that the whole model no longer supports.
+After the selection: what the noise and the probes say about the named effects.
 
-``drop_redundant`` (backward elimination), ``within_slow_noise`` (no larger than the
-noise's own wander) and ``demote_partial`` (a projection of a dependence of another
-shape) each move an effect out of the steps and refit the rest (``refit_steps``).
+Neither acts when the named set closes the gap: the probes detect where structure lives
+and say "outside the library", they never veto a set that brings the gap into the noise.
+
+- ``within_slow_noise``: when the noise inside the windows is correlated, an effect in time
+  or temperature no larger than the noise's own slow wander is withdrawn;
+- ``withdraw_projections``: when the gap is not closed (and the rest is neither negligible
+  nor a walk's or slow noise's), a named effect that only projects a dependence of another
+  shape is withdrawn: the probe in its own variable still finds a good share of what it
+  removed, or it adds nothing beside the structure the probes (and a single jump in time)
+  find in other variables.
 """
 
 import numpy as np
-from scipy import stats
 
-from .agreement import P_SUPPORT
+from .agreement import best_step
+from .criterion import COLLINEAR, P_SUPPORT, support_stats
 from .effects import EFFECTS, G0
-from .model import fit_model, Model
-from .probes import delta_bic, FAMILY, residual_probes
+from .probes import added_on_top, FAMILY, residual_probes
+from .steps import record_steps
 
 
-def drop_redundant(result, c):
-    """
-    Withdraw a named effect that a later one makes redundant (backward elimination).
-
-    Each named effect is tested against the final model without it (nested F-test and
-    ΔBIC, as when it was added): a linear drift named before a random walk that also
-    follows it, for example, then adds nothing. The weakest redundant one is withdrawn
-    (to ``vetoed``) and the rest refitted, until every named effect holds its place.
-    """
-    n = len(c.readings)
-    while len(result.steps) > 1:
-        fit = result.fits[-1]
-        objects = Model(result.baseline, fit.effects).objects
-        worst = None
-        for step in result.steps:
-            kept = [s for s in result.steps if s is not step]
-            effects = [objects[s['effect']] for s in kept]
-            model = Model(result.baseline, effects)
-            T, bias, params = Model(result.baseline, fit.effects).split(fit.x)
-            start = np.concatenate([model.pack_baseline(T, bias)]
-                                   + [params[s['effect']] for s in kept])
-            try:
-                _, without = fit_model(result.baseline, effects, c, start)
-            except (ValueError, np.linalg.LinAlgError):
-                continue
-            bound = objects[step['effect']]
-            k = len(bound.param_names) + bound.searched
-            drop = without.chi2 - fit.chi2
-            F = (drop / k) / max(fit.chi2 / max(fit.dof, 1), 1e-300)
-            p = float(stats.f.sf(F, k, max(fit.dof, 1)))
-            bic = delta_bic(without.chi2, drop, k, n)
-            if (p >= P_SUPPORT or bic <= 0) and (worst is None or p > worst[1]):
-                worst = (step, p, bic)
-        if worst is None:
-            break
-        step, p, bic = worst
-        later = [s['effect'] for s in result.steps if s is not step]
-        result.vetoed.append({'effect': step['effect'], 'worst_case_mg':
-                              step['evidence']['worst_case_mg'], 'F': step['evidence']['F'],
-                              'p': p, 'step': result.steps.index(step) + 1,
-                              'reason': f'redundant beside {", ".join(later)} (p = {p:.2g}, '
-                                        f'ΔBIC {bic:.0f})'})
-        refit_steps(result, [s for s in result.steps if s is not step], c, objects)
-    fit = result.fits[-1]
-    return Model(result.baseline, fit.effects), fit
+def _refit(result, kept):
+    """Refit the kept effects jointly (in their order) and update steps and probes."""
+    record_steps(result, kept)
+    final = result.final_set
+    result.probes = residual_probes(final.model, final.fit, result.conditions)
 
 
 SLOW_FACTOR = 2.0
 """A time or temperature effect must stand this many times above the slow noise's scatter."""
 
 
-def within_slow_noise(result, c):
+def within_slow_noise(result):
     """
     Withdraw time and temperature effects no larger than the noise's own slow wander.
 
@@ -76,25 +43,26 @@ def within_slow_noise(result, c):
     effect in time or temperature whose signal (RMS over the windows, along gravity) is
     not ``SLOW_FACTOR`` times the scatter left beyond the within-window noise
     (``DiagnoseResult.excess_scatter``) is no larger than that wander: it is withdrawn
-    (to ``vetoed``) and the rest refitted.
+    (to ``vetoed``) and the rest refitted. Only when that scatter is there: the gap beyond
+    its null limit.
     """
-    fit = result.fits[-1]
-    model = Model(result.baseline, fit.effects)
     excess = result.excess_scatter()
-    if excess <= 0:
-        return model, fit
-    _, s = model.residual_parts(fit.x, c)
-    params = model.split(fit.x)[2]
+    if excess <= 0 or result.statistically_explained:
+        return
+    final = result.final_set
+    c = result.conditions
+    _, s = final.model.residual_parts(final.fit.x, c)
     gone = []
     for step in result.steps:
-        if FAMILY.get(EFFECTS[step['effect']].variable) not in ('time', 'temperature'):
+        name = step['effect']
+        if FAMILY.get(EFFECTS[name].variable) not in ('time', 'temperature'):
             continue
-        j = model.effect_jacobian(fit.x, c, step['effect'])
-        signal = float(np.sqrt(np.mean((s * (j @ params[step['effect']])) ** 2)))
+        j = final.model.effect_jacobian(final.fit.x, c, name)
+        signal = float(np.sqrt(np.mean((s * (j @ final.params(name))) ** 2)))
         if signal < SLOW_FACTOR * excess:
-            gone.append(step)
+            gone.append(name)
             result.vetoed.append({
-                'effect': step['effect'], 'worst_case_mg': step['evidence']['worst_case_mg'],
+                'effect': name, 'worst_case_mg': step['evidence']['worst_case_mg'],
                 'F': step['evidence']['F'], 'p': step['evidence']['p'],
                 'step': result.steps.index(step) + 1,
                 'reason': f'no larger than the wander of the slow noise: its signal is '
@@ -102,67 +70,125 @@ def within_slow_noise(result, c):
                           'mg per window of scatter beyond the within-window noise, which is '
                           'correlated'})
     if gone:
-        refit_steps(result, [s for s in result.steps if s not in gone], c, model.objects)
-    fit = result.fits[-1]
-    return Model(result.baseline, fit.effects), fit
-
-
-def refit_steps(result, kept, c, objects):
-    """Refit the named effects ``kept`` one after another; update steps, fits and notes."""
-    names = {step['effect'] for step in kept}
-    # A note on what a withdrawn effect was confounded with goes with it.
-    result.ambiguities = [note for note in result.ambiguities
-                          if note.split(' and ', 1)[0] in names]
-    fits = [result.fits[0]]
-    for step in kept:
-        bound = objects[step['effect']]
-        effects = fits[-1].effects + [bound]
-        start = np.concatenate([fits[-1].x, np.zeros(len(bound.param_names))])
-        _, new_fit = fit_model(result.baseline, effects, c, start)
-        new_fit.dof -= bound.searched
-        step['gap_before'], step['gap_after'] = fits[-1].gap, new_fit.gap
-        fits.append(new_fit)
-    result.steps, result.fits = kept, fits
+        _refit(result, [s['effect'] for s in result.steps if s['effect'] not in gone])
 
 
 PARTIAL_SHARE = 0.05
 """A named effect is withdrawn when its variable's probe still finds this share of its Δχ²."""
 
 
-def demote_partial(result, c):
-    """
-    Withdraw named effects that only explain part of a dependence of another shape.
+def _own_variable(result, name, joint_drop):
+    """Return the significant probe in the effect's own variable holding a share of its Δχ²."""
+    family = FAMILY.get(EFFECTS[name].variable, EFFECTS[name].variable)
+    probes = [(probe, p) for probe, p in result.probes.items()
+              if FAMILY[probe] == family and p['significant']
+              and p['delta_chi2'] >= PARTIAL_SHARE * joint_drop]
+    return max(probes, key=lambda item: item[1]['delta_chi2']) if probes else None
 
-    When what is left is not explained (``DiagnoseResult.explained``) and the
-    nonparametric probe in a named effect's own variable (``Effect.variable``: time for
-    ``bias_drift``, temperature for the temperature effects, direction or |y| for the
-    orientation effects) is still significant and still explains at least
-    ``PARTIAL_SHARE`` of the chi² the effect removed, the effect is a projection of
-    something the library lacks (a step, a curve, a cycle, a higher-order direction
-    term), not the cause: it is moved to ``result.partial`` and the model is refitted
-    without it.
+
+def _span(cols):
+    u, sv, _ = np.linalg.svd(cols, full_matrices=False)
+    return u[:, sv > 1e-6 * max(sv.max(), 1e-300)]
+
+
+def _beside_structure(result, name, kept):
     """
-    if result.explained:
+    Return the structure of another shape that leaves effect ``name`` nothing to add, or None.
+
+    Fitted to the residuals of the set without ``name`` (linearised): the significant
+    probes of other variables (free shapes), and a single jump in time (a parametric shape).
+    ``name`` is a projection of that structure when the structure is the better explanation
+    by the selection's criterion (its BIC gain at least ``name``'s), ``name``'s columns add
+    nothing beside it (F-test), and the structure can judge it: ``name``'s fitted signal
+    lies mostly outside the probes' span (inside it, the two variables are confounded in
+    this session, e.g. a temperature that rises with time, and a free shape follows
+    anything), and the jump adds something beside ``name`` (else the two are one shape).
+
+    :returns: (what the structure is, the F-test p-value of ``name`` beside it) or None.
+    """
+    fits, c = result.session_fits, result.conditions
+    without = fits.fit([n for n in kept if n != name])
+    full = fits.fit(kept)
+    if without is None or full is None:
+        return None
+    family = FAMILY.get(EFFECTS[name].variable, EFFECTS[name].variable)
+    r, chi2, dof = without.fit.residuals, without.fit.chi2, without.fit.dof
+    q = without.basis
+    j = fits._columns(without, full.bound[name])
+    j = j - q @ (q.T @ j)
+    # The structure must be the better explanation by the same criterion (BIC gain on the
+    # set without the effect), and leave the effect nothing to add.
+    k_e = full.k(name)
+    own_bic = float(support_stats([chi2], [full.chi2], k_e, full.dof, fits.n, fits.nu)[2][0])
+
+    def preferred(u, extra=0):
+        span = _span(u)
+        drop = float(np.sum((span.T @ r) ** 2))
+        k = span.shape[1] + extra
+        _, p, bic = support_stats([chi2], [chi2 - drop], k, dof - k, fits.n, fits.nu)
+        return p[0] < P_SUPPORT and bic[0] >= own_bic
+    probes = residual_probes(without.model, without.fit, c)
+    found = [(f'the {probe} probe ({p["rms_mg"]:.2g} mg RMS)', p['_basis'])
+             for probe, p in probes.items() if FAMILY[probe] != family and p['significant']]
+    if found:
+        u = np.hstack([basis for _, basis in found])
+        signal = j @ np.linalg.lstsq(j, r, rcond=None)[0]
+        span = _span(u)
+        inside = float(np.sum((span.T @ signal) ** 2) / max(signal @ signal, 1e-300))
+        on_top = added_on_top(r, chi2, dof, u, j)
+        if inside <= COLLINEAR and on_top >= P_SUPPORT and preferred(u):
+            return ' and '.join(label for label, _ in found), on_top
+    step = best_step(without.model, without.fit, c)
+    if step:
+        on_top = added_on_top(r, chi2, dof, step['basis'], j)
+        back = added_on_top(r, chi2, dof, j, step['basis'])
+        if on_top >= P_SUPPORT and back < P_SUPPORT and preferred(step['basis'], 1):
+            return (f'a single jump in time at t = {step["time"]:+.0f} s (about '
+                    f'{step["size_mg"]:.2g} mg RMS; the mount shifting?)'), on_top
+    return None
+
+
+def withdraw_projections(result):
+    """
+    Withdraw named effects that only project a dependence of another shape (gap not closed).
+
+    Nothing happens when the named set closes the gap (within the null limit). Otherwise
+    each named effect is checked in turn: the probe
+    in its own variable (``Effect.variable``) still finds ``PARTIAL_SHARE`` of the Δχ² it
+    removed (it fits part of a curve, a step, a cycle, a direction term of higher degree),
+    or it adds nothing beside the structure the probes and a single jump find elsewhere.
+    Such an effect moves to ``partial`` and the rest is refitted jointly.
+    """
+    if result.statistically_explained or not result.steps:
         return
+    fits = result.session_fits
+    kept = [s['effect'] for s in result.steps]
     partial = []
-    for step in result.steps:
-        variable = EFFECTS[step['effect']].variable
-        probes = [(name, p) for name, p in result.probes.items()
-                  if FAMILY[name] == FAMILY.get(variable, variable) and p['significant']]
-        worst = step['evidence']['worst_case_mg']
-        share = PARTIAL_SHARE * step['evidence']['delta_chi2']
-        probes = [(name, p) for name, p in probes if p['delta_chi2'] >= share]
-        if probes:
-            name, probe = max(probes, key=lambda item: item[1]['delta_chi2'])
-            partial.append({'effect': step['effect'], 'worst_case_mg': worst,
-                            'variable': name, 'left_rms_mg': probe['rms_mg'],
-                            'left_p': probe['p']})
+    for name in list(kept):
+        without = fits.fit([n for n in kept if n != name])
+        full = fits.fit(kept)
+        if without is None or full is None:
+            continue
+        worst = fits.worst(full, name)
+        own = _own_variable(result, name, without.chi2 - full.chi2)
+        if own:
+            probe, p = own
+            partial.append({'effect': name, 'worst_case_mg': worst, 'variable': probe,
+                            'left_rms_mg': p['rms_mg'], 'left_p': p['p'],
+                            'reason': f'explains only part of a dependence on {probe} of '
+                                      f'another shape ({p["rms_mg"]:.2g} mg RMS left, p = '
+                                      f'{p["p"]:.1e})'})
+            continue
+        other = _beside_structure(result, name, kept)
+        if other:
+            label, on_top = other
+            partial.append({'effect': name, 'worst_case_mg': worst,
+                            'variable': label.split(' ')[1] if label.startswith('the ')
+                            else 'time', 'left_rms_mg': None, 'left_p': on_top,
+                            'reason': f'adds nothing beside {label} (p = {on_top:.2g}): a '
+                                      'projection of a dependence of another shape'})
     if not partial:
         return
     gone = {p['effect'] for p in partial}
-    objects = Model(result.baseline, result.fits[-1].effects).objects
-    refit_steps(result, [step for step in result.steps if step['effect'] not in gone], c,
-                objects)
+    _refit(result, [n for n in kept if n not in gone])
     result.partial = partial
-    model = Model(result.baseline, result.fits[-1].effects)
-    result.probes = residual_probes(model, result.fits[-1], c)

@@ -163,8 +163,7 @@ def write_report(result, folder):
         lines.append(f'- Not testable with this session: {name} ({reason}).')
     for item in result.partial:
         lines.append(f'- Not named: {item["effect"]} (up to {item["worst_case_mg"]:.2g} mg) '
-                     f'explains only part of a dependence on {item["variable"]} of another '
-                     f'shape ({item["left_rms_mg"]:.2g} mg RMS left).')
+                     f'{item["reason"]}.')
     for item in result.vetoed:
         lines.append(f'- Not named: {item["effect"]} (up to {item["worst_case_mg"]:.2g} mg): '
                      f'{item["reason"]}.')
@@ -184,11 +183,7 @@ def write_report(result, folder):
     lines.append(f'Final gap {result.gap_after:.2f}; noise alone gives at most '
                  f'{result.null_limit:.2f} (99.9 % point of F(dof, noise dof), p = '
                  f'{result.null_p:.2g}): {result.verdict()}.')
-    power = result.power()
-    if power['min_detectable_mg'] is not None:
-        lines.append(f'Power: a systematic error of {power["min_detectable_mg"]:.2g} mg per '
-                     f'window would be detected with {100 * power["probability"]:.0f} % '
-                     f'probability (noise level from {power["noise_source"]}).')
+    lines.append(result.power_text().replace('power:', 'Power:', 1) + '.')
     if result.null_gaps:
         lines.append(f'Re-simulated gaps: {np.mean(result.null_gaps):.2f} ± '
                      f'{np.std(result.null_gaps):.2f} ({len(result.null_gaps)} runs).')

@@ -20,7 +20,13 @@ WALK_TOLERANCE = 2.0
 
 
 CANNOT_TELL_POWER = 0.5
-"""Below this probability of detecting an error of the practical threshold: cannot tell."""
+"""Without a naming simulation: below this probability of the gap test detecting an error of
+the practical threshold's size, cannot tell."""
+
+
+CANNOT_TELL_FACTOR = 2.0
+"""A verdict of noise needs every tested effect of this many thresholds noticed (half the
+time at least, ``CANNOT_TELL_POWER``): its ``power.LIMIT_STEP``."""
 
 
 NEGLIGIBLE_FACTOR = 3.0
@@ -57,6 +63,12 @@ class DiagnoseResult:
     unconfirmed: list = field(default_factory=list)  # gn effects the ml baseline does not find
     ml_check: dict = None                            # gn: what the ml baseline search found
     still: dict = None                               # the drift the still windows show
+    alternatives: list = field(default_factory=list)  # confounded rivals of named effects
+    tested: list = field(default_factory=list)        # the library effects the session shows
+    naming_power: dict = None                         # power.calibrate_power, or None
+    session_fits: object = field(default=None, repr=False)   # setfit.SessionFits
+    selection: object = field(default=None, repr=False)      # selection.Selection
+    final_set: object = field(default=None, repr=False)      # setfit.SetFit of the steps
     _power_memo: dict = field(default_factory=dict, repr=False)
 
     @property
@@ -144,10 +156,10 @@ class DiagnoseResult:
         """
         Return the scatter per window, m/s², that a named random walk leaves, 0 without one.
 
-        ``bias_random_walk`` follows the offset with a few cosine terms; a random walk
-        of K per √s has cosine coefficients of variance 2 K² T / (k pi)² over a session
-        of T seconds, so the terms beyond the d fitted leave a wander of variance about
-        K² T / (pi² d) per axis that varies from window to window. K is estimated from the
+        ``bias_random_walk`` follows the offset with a trend and a few cosine terms; a random
+        walk of K per √s gives each cosine coefficient a variance K² f_k and leaves a wander
+        beyond the terms of variance K² r per window (``BiasRandomWalk.brownian``, about
+        2 T / (k pi)² and T / (pi² d) over a session of T seconds). K is estimated from the
         fitted coefficients; the scatter is taken along gravity, averaged over windows.
         """
         fit = self.fits[-1]
@@ -156,11 +168,10 @@ class DiagnoseResult:
         if walk is None:
             return 0.0
         T, _, params = model.split(fit.x)
-        d = walk.degree
-        coef = params['bias_random_walk'].reshape(3, d) / np.abs(np.diag(T))[:, None]
-        k = np.arange(1, d + 1)
-        k2 = np.mean(coef ** 2 * (k * np.pi) ** 2 / (2.0 * walk.span), axis=1)
-        rough = k2 * walk.span / (np.pi ** 2 * d)                  # variance per axis
+        coef = walk.cosines(params['bias_random_walk']) / np.abs(np.diag(T))[:, None]
+        factors, rest = walk.brownian(self.conditions.time)
+        k2 = np.mean(coef ** 2 / factors, axis=1)
+        rough = k2 * rest                                          # variance per axis
         a = model.true_accel(fit.x, self.conditions)
         n = a / np.linalg.norm(a, axis=1, keepdims=True)
         return float(np.sqrt(np.mean(n ** 2 @ rough)))
@@ -197,18 +208,15 @@ class DiagnoseResult:
         return ('between windows' if self.slow_noise or self.scatter_below_noise
                 else 'within windows')
 
-    def power(self):
+    def gap_power(self):
         """
-        Return the test's power, JSON-ready: the smallest error it could have detected.
+        Return the gap test's own power, the figures of a systematic error per window.
 
-        ``min_detectable_mg``: the smallest systematic error per window, mg, that makes
-        the gap exceed its null limit with probability ``probability`` (see
-        ``noise.min_detectable_mg``), with the noise level from ``noise_source``
-        (within windows: its measured degrees of freedom; between windows: the model's
-        dof); ``min_detectable_mg_known_noise``: the same with the level known exactly,
-        so the difference is what the noise level's own uncertainty costs. None when no
-        error size would be detected. ``at_threshold``: the probability of detecting an
-        error of the practical threshold's size.
+        (smallest error detected, the same with the noise level known, the probability of
+        detecting an error of the practical threshold's size, the noise dof used). A
+        systematic error of one size in every window, along gravity, in a pattern the model
+        cannot absorb (``noise.min_detectable_mg``), with the noise level from
+        ``noise_source``. Sizes are None when no error size gets there.
         """
         fit = self.fits[-1]
         key = (id(fit), self.gap_after, self.noise_dof, self.noise_source)
@@ -224,29 +232,89 @@ class DiagnoseResult:
             known = min_detectable_mg(fit.dof, float('inf'), inv, n)
             at_threshold = detection_probability(self.threshold_mg, fit.dof, nu, inv, n)
             self._power_memo.clear()
-            self._power_memo[key] = {
-                'min_detectable_mg': mde if np.isfinite(mde) else None,
-                'min_detectable_mg_known_noise': known if np.isfinite(known) else None,
-                'probability': POWER, 'quantile': NULL_QUANTILE,
-                'at_threshold': at_threshold,
-                'noise_source': self.noise_source,
-                'noise_dof': nu if np.isfinite(nu) else None}
-        return dict(self._power_memo[key])
+            self._power_memo[key] = (mde if np.isfinite(mde) else None,
+                                     known if np.isfinite(known) else None, at_threshold, nu)
+        return self._power_memo[key]
+
+    def power(self):
+        """
+        Return the power of the verdict, JSON-ready: the sizes the workflow would name.
+
+        ``per_effect``: for each tested library effect not named, ``min_named_mg``, the
+        smallest worst-case size at which the workflow names it (or reports it as the
+        alternative to a simpler confounded effect) in at least ``power.TARGET`` of
+        simulated sessions of this design (``power``; None when not up to 17 thresholds),
+        ``rate`` there, ``rate_at_threshold``, and ``min_noticed_mg``, from which it changes
+        the verdict (something is named, or the gap stays open). ``min_detectable_mg``: the
+        largest ``min_noticed_mg``, the size from which no tested library effect goes
+        unnoticed (None when one would; without a simulation the gap test's figure).
+        ``gap_test``: what the gap test alone sees, a systematic error per window
+        (``gap_power``).
+        """
+        mde, known, at_threshold, nu = self.gap_power()
+        out = {'probability': POWER, 'quantile': NULL_QUANTILE,
+               'noise_source': self.noise_source,
+               'noise_dof': nu if np.isfinite(nu) else None,
+               'gap_test': {'min_error_mg': mde, 'min_error_mg_known_noise': known,
+                            'at_threshold': at_threshold},
+               'at_threshold': at_threshold}
+        if self.naming_power is None:
+            out.update(method='gap test', min_detectable_mg=mde, per_effect={})
+            return out
+        sizes = [v['min_noticed_mg'] for v in self.naming_power.values()
+                 if 'confounded_with' not in v]
+        out.update(method="naming simulated on this session's design",
+                   min_detectable_mg=(None if None in sizes else max(sizes, default=None)),
+                   per_effect={name: dict(value)
+                               for name, value in self.naming_power.items()})
+        return out
+
+    def weak_effects(self):
+        """
+        Return the tested effects that would go unnoticed at ``CANNOT_TELL_FACTOR`` thresholds.
+
+        Noticed in less than ``CANNOT_TELL_POWER`` of the simulated sessions at that size:
+        {name: the size from which it is noticed with 80 %, or None}.
+        """
+        if not self.naming_power:
+            return {}
+        return {name: value['min_noticed_mg'] for name, value in self.naming_power.items()
+                if 'confounded_with' not in value
+                and value.get('noticed_at_limit', 0.0) < CANNOT_TELL_POWER}
 
     @property
     def cannot_tell(self):
         """
-        Tell whether the test accepts the gap without the power to see a practical error.
+        Tell whether a verdict of noise would claim more than this session can know.
 
-        The gap is within its null limit (or what is left is slow noise), but an error of
-        the practical threshold's size would be missed more often than seen (detection
-        probability below ``CANNOT_TELL_POWER``, see ``power``): "explained by noise" would
-        be vacuous (a noise level measured with a few degrees of freedom accepts any gap;
-        slow noise of a few mg hides an error of a few mg).
+        The gap is within its null limit (or what is left is slow noise), but either some
+        tested library effect of ``CANNOT_TELL_FACTOR`` times the practical threshold would
+        go unnoticed (nothing named, the gap closed) more often than not (``weak_effects``:
+        the naming simulated on this session's design, ``power``), or an error of the
+        practical threshold's size would be missed by the gap test itself more often than
+        seen (``CANNOT_TELL_POWER``): the rest could then be anything, not only noise.
         """
-        if not (self.statistically_explained or self.slow_noise):
+        if self.kind not in ('explained', 'slow noise'):
             return False
-        return self.power()['at_threshold'] < CANNOT_TELL_POWER
+        return bool(self.weak_effects()) or self.gap_power()[2] < CANNOT_TELL_POWER
+
+    @property
+    def kind(self):
+        """Return what is left, before the power is asked: see ``outcome``."""
+        if self.statistically_explained:
+            return 'explained'
+        if self.negligible:
+            return 'negligible'
+        if self.walk_explains_rest:
+            return 'walk'
+        if self.slow_noise:
+            return 'slow noise'
+        return 'not explained'
+
+    @property
+    def benign_rest(self):
+        """Tell whether what is left is noise, negligible, a walk's rest or slow noise."""
+        return self.kind != 'not explained'
 
     @property
     def outcome(self):
@@ -257,15 +325,10 @@ class DiagnoseResult:
         'walk' (the rest is a named random walk's roughness), 'slow noise' or
         'not explained'.
         """
-        if self.statistically_explained:
-            return 'cannot tell' if self.cannot_tell else 'explained'
-        if self.negligible:
-            return 'negligible'
-        if self.walk_explains_rest:
-            return 'walk'
-        if self.slow_noise:
-            return 'cannot tell' if self.cannot_tell else 'slow noise'
-        return 'not explained'
+        kind = self.kind
+        if kind in ('explained', 'slow noise') and self.cannot_tell:
+            return 'cannot tell'
+        return kind
 
     @property
     def explained(self):
@@ -333,16 +396,7 @@ class DiagnoseResult:
         if kind == 'explained':
             return 'explained by noise'
         if kind == 'cannot tell':
-            power = self.power()
-            mde, known = power['min_detectable_mg'], power['min_detectable_mg_known_noise']
-            size = 'no error' if mde is None else f'an error of {mde:.2g} mg per window'
-            cause = ('noise too uncertain' if known is not None and known <= self.threshold_mg
-                     else 'noise too large')
-            return (f'cannot tell: {cause} (noise level from {power["noise_source"]}, '
-                    f'{_dof_text(power["noise_dof"])}); an error of the practical threshold '
-                    f'({self.threshold_mg:.2g} mg) would be detected with only '
-                    f'{100 * power["at_threshold"]:.0f} % probability, and {size} with '
-                    f'{100 * power["probability"]:.0f} %')
+            return self._cannot_tell_text()
         if kind == 'negligible':
             return (f'beyond the noise, but the rest ({1000 * self.excess_scatter() / G0:.2g} '
                     f'mg per window) is below the practical threshold '
@@ -359,6 +413,32 @@ class DiagnoseResult:
                     'correlated (flicker, bias instability)')
         return ('NOT explained by noise: no effect in the library brings the gap into the '
                 'noise band; the cause may lie outside the effect library')
+
+    def _cannot_tell_text(self):
+        power = self.power()
+        source = (f'noise level from {power["noise_source"]}, '
+                  f'{_dof_text(power["noise_dof"])}')
+        gap = power['gap_test']
+        mde, known = gap['min_error_mg'], gap['min_error_mg_known_noise']
+        cause = ('noise too uncertain' if known is not None and known <= self.threshold_mg
+                 and (mde is None or mde > self.threshold_mg)
+                 else 'noise too large' if known is None or known > self.threshold_mg
+                 else 'this design shows some effects only weakly')
+        weak = self.weak_effects()
+        if weak:
+            limit = CANNOT_TELL_FACTOR * self.threshold_mg
+            sizes = ', '.join(f'{name} only from {mg:.2g} mg' if mg is not None
+                              else f'{name} not even at {16 * self.threshold_mg:.2g} mg'
+                              for name, mg in weak.items())
+            return (f"cannot tell: {cause} ({source}); on this session's design an effect "
+                    f'of {limit:.2g} mg (twice the practical threshold) would go unnoticed '
+                    f'more often than not: the workflow notices {sizes} (80 % of simulated '
+                    'sessions)')
+        size = 'no error' if mde is None else f'an error of {mde:.2g} mg per window'
+        return (f'cannot tell: {cause} ({source}); an error of the practical threshold '
+                f'({self.threshold_mg:.2g} mg) would be detected with only '
+                f'{100 * power["at_threshold"]:.0f} % probability, and {size} with '
+                f'{100 * power["probability"]:.0f} %')
 
     def still_drift(self):
         """Return the drift the still windows show, JSON-ready (mg/min per axis), or None."""
@@ -383,6 +463,7 @@ class DiagnoseResult:
             'baseline': self.baseline, 'missing_effects': self.missing_effects,
             'gap_before': self.gap_before, 'gap_after': self.gap_after,
             'steps': self.steps, 'ambiguities': self.ambiguities,
+            'alternatives': self.alternatives,
             'windows': self.windows, 'dropped_windows': self.dropped_windows,
             'explained_by_noise': bool(self.explained),
             'statistically_explained': bool(self.statistically_explained),
@@ -401,6 +482,28 @@ class DiagnoseResult:
             'parameters': self.parameters(),
             'not_testable': self.skipped,
         }
+
+    def power_text(self):
+        """Return the power line of the text: what the workflow would have named."""
+        power = self.power()
+        per = power['per_effect']
+        gap = power['gap_test']['min_error_mg']
+        tail = (f'the gap test alone sees {gap:.2g} mg per window' if gap is not None
+                else 'the gap test alone would see no error')
+        if not per:
+            return (f'power: {tail} with {100 * power["probability"]:.0f} % probability '
+                    f'(noise level from {power["noise_source"]}, '
+                    f'{_dof_text(power["noise_dof"])})')
+        sizes = ', '.join(
+            f'{name} taken up by {value["confounded_with"]}' if 'confounded_with' in value
+            else f'{name} {value["min_named_mg"]:.2g} mg' if value['min_named_mg'] is not None
+            else f'{name} only noticed, from {value["min_noticed_mg"]:.2g} mg'
+            if value['min_noticed_mg'] is not None else f'{name} not noticed'
+            for name, value in per.items())
+        return (f'power: the workflow would name {sizes} (worst case; '
+                f'{100 * power["probability"]:.0f} % of simulated sessions of this design, '
+                f'noise level from {power["noise_source"]}, {_dof_text(power["noise_dof"])}); '
+                + tail)
 
     def text(self):
         """Return the human summary."""
@@ -425,9 +528,7 @@ class DiagnoseResult:
                          f'(up to {cand["worst_case_mg"]:.2g} mg, p = {cand["p"]:.1e})')
         for item in self.partial:
             lines.append(f'not named: {item["effect"]} (up to {item["worst_case_mg"]:.2g} mg) '
-                         f'explains only part of a dependence on {item["variable"]} of another '
-                         f'shape ({item["left_rms_mg"]:.2g} mg RMS left, p = '
-                         f'{item["left_p"]:.1e})')
+                         + item['reason'])
         for item in self.vetoed:
             lines.append(f'not named: {item["effect"]} (up to {item["worst_case_mg"]:.2g} mg): '
                          f'{item["reason"]}')
@@ -442,12 +543,7 @@ class DiagnoseResult:
             lines.append(f'not testable here: {name} ({reason})')
         lines.append(f'final gap {self.gap_after:.2f} (noise limit {self.null_limit:.2f}, '
                      f'p = {self.null_p:.2g}): {self.verdict()}')
-        power = self.power()
-        if power['min_detectable_mg'] is not None:
-            lines.append(f'power: a systematic error of {power["min_detectable_mg"]:.2g} mg per '
-                         f'window would be detected with {100 * power["probability"]:.0f} % '
-                         f'probability (noise level from {power["noise_source"]}, '
-                         f'{_dof_text(power["noise_dof"])})')
+        lines.append(self.power_text())
         if self.outcome in ('negligible', 'not explained'):
             lines.append(f'the rest is a scatter of {self.excess_scatter():.2g} m/s² per window')
             found = [(name, p) for name, p in self.probes.items() if p['significant']]

@@ -5,36 +5,41 @@ Model-gap workflow: where simulation and measurement disagree, and why.
    bias) to the session's static windows, each residual divided by the noise of its
    window mean measured from the data itself (``noise.window_noise``), so that the gap
    sqrt(chi²/dof) is about 1 when model and measurement agree; its null law is
-   F(dof, noise dof), and the test's power is reported with the verdict.
-2. Each effect of the library (``effects.EFFECTS``) that the session can show
-   (``Effect.applicable``, enough degrees of freedom, ``visibility``) is added in
-   turn and refitted; a nested-model F-test (robust to a mis-estimated noise level)
-   and the BIC decide whether the data support it.
-3. The supported effects are ranked by ΔBIC and the first that agrees with all the
-   evidence (``agreement.disagreement``: the probes as alternatives, the still data, its
-   confounders) is named; the loop repeats until nothing more is supported. With a gn
-   baseline, only what the ml baseline also finds is named (``_confirm_with_ml``).
-4. Named effects that the whole model no longer supports are withdrawn
-   (``pruning``); what is left is judged: noise, no power to tell, negligible, the rest
-   of a random walk, slow noise, or NOT explained with where it lives (``probes``).
+   F(dof, noise dof).
+2. One model selection (``selection``) over sets of the library effects the session can
+   show (``Effect.applicable``, enough degrees of freedom, ``visibility``): each set fitted
+   jointly (``setfit``), searched parameters too, compared by one criterion
+   (``criterion``: BIC with the pooled noise level, held-out chi² where the margin is small,
+   Occam among confounded ties); a member that the others make redundant, refitted jointly,
+   is withdrawn. Measurements about one effect (the still data of a drift, the roughness of
+   a walk) can contradict it; no rule between two effects and no probe vetoes a set.
+3. What the noise and the probes say after it (``pruning``): an effect no larger than slow
+   noise's wander, or one that only projects a dependence of another shape while the gap
+   stays open, is withdrawn; the probes say where what is left lives. With a gn baseline,
+   only what the ml baseline also finds is named (``_confirm_with_ml``).
+4. The power: how large each library effect must be for this workflow to name it on this
+   session's design, by simulation (``power``); a verdict of noise that could not have
+   named a library effect of practical size says "cannot tell".
 
 ``diagnose(samples)`` runs it on a recording, ``diagnose_windows(windows)`` on static
 windows (the calibration node), ``held_out_check`` cross-validates the finding.
 """
 
 import numpy as np
-from scipy import stats
 
-from .agreement import (COLLINEAR, disagreement, lag_against_pair, P_SUPPORT, still_drift,
-                        walk_against_drift)
+from .agreement import still_contradicts, still_drift, walk_too_smooth
+from .criterion import P_SUPPORT, support_stats
 from .effects import EFFECTS, G0
-from .evidence import (column_correlation, effect_worst_case_mg, separation_advice,
-                       strongest_correlations, visibility)
+from .evidence import visibility
 from .model import conditions_from_windows, fit_model, min_windows, Model, model_start
 from .noise import simulated_null_gaps, window_noise, WindowNoise
-from .probes import delta_bic, residual_probes
-from .pruning import demote_partial, drop_redundant, within_slow_noise
+from .power import calibrate_power
+from .probes import residual_probes
+from .pruning import withdraw_projections, within_slow_noise
 from .result import DiagnoseResult, MIN_EFFECT_MG
+from .selection import select, Selection
+from .setfit import SessionFits
+from .steps import record_steps
 from ..core.accelerometer.fit import calibrate
 from ..core.errors import CalibrationError
 from ..core.windows import DEFAULTS, detect_static_windows, MAX_WEIGHT_S
@@ -43,13 +48,9 @@ MIN_VISIBILITY = 0.01
 """Effects that this session shows less than this (see ``visibility``) are not tested."""
 
 
-RIVAL_BIC = 10.0
-"""A rival's ΔBIC is within this of the winner's (beyond it, the evidence is very strong)."""
-
-
 def diagnose_windows(windows, baseline='ml', gravity=9.80665, rate_hz=None, rng=None,
                      replicates=0, inflation=1.0, max_steps=4, noise=None, min_effect_mg=None,
-                     still=None, confirm=True):
+                     still=None, confirm=True, power=True):
     """
     Run the model-gap workflow on static windows (also used by the calibration node).
 
@@ -71,6 +72,8 @@ def diagnose_windows(windows, baseline='ml', gravity=9.80665, rate_hz=None, rng=
     :param confirm: with baseline 'gn', name only effects the ``ml`` baseline also finds
         (or nonorthogonality, the term gn lacks, when the ml fit's cross-axis terms are
         significant beside them); see ``_confirm_with_ml``.
+    :param power: simulate the naming power of the session's design (``power``); without
+        it the verdict rests on the gap test's power alone.
     :returns: DiagnoseResult.
     :raises CalibrationError: too few windows, or the baseline cannot be fitted.
     """
@@ -90,6 +93,8 @@ def diagnose_windows(windows, baseline='ml', gravity=9.80665, rate_hz=None, rng=
     result = _search(windows, baseline, **search)
     if baseline == 'gn' and confirm:
         result = _confirm_with_ml(result, windows, search)
+    if power and max_steps > 0:
+        _naming_power(result)
     model = Model(baseline, result.fits[-1].effects)
     fit = result.fits[-1]
     result.null_gaps = (simulated_null_gaps(model, fit, result.conditions, rng, replicates)
@@ -100,20 +105,22 @@ def diagnose_windows(windows, baseline='ml', gravity=9.80665, rate_hz=None, rng=
 def _search(windows, baseline, gravity, rate_hz, noise, min_effect_mg, max_steps, still,
             allowed=None):
     """
-    Search the library for the effects the session supports, one step at a time.
-
-    Each round fits every candidate (``_try``), ranks the significant and large enough
-    ones by ΔBIC, and names the first that agrees with all the evidence
-    (``disagreement``): the probes as alternatives, and the still windows for a drift.
+    Select the effects the session supports (``selection.select``) and judge what is left.
 
     :param allowed: names that may be named (all when None).
     """
     c = conditions_from_windows(windows, gravity, noise.inflation)
     start_cal = calibrate(c.readings, gravity, baseline, windows.count.astype(float))
-    model, fit = fit_model(baseline, [], c, model_start(baseline, start_cal))
     accuracy, noise_only = _fit_accuracy_mg(windows, gravity, baseline, rate_hz)
     threshold = (float(min_effect_mg) if min_effect_mg is not None
                  else max(MIN_EFFECT_MG, noise_only if np.isfinite(noise_only) else 0.0))
+    # A model that fits is judged with the within-window noise level pooled in, unless that
+    # noise is correlated: noise slower than a window then escapes the level (step 2).
+    pooled = 0.0 if noise.coloured else noise.dof
+    fits = SessionFits(baseline, c, model_start(baseline, start_cal), threshold, pooled,
+                       veto=_contradiction(c, still, noise.dof), noise_dof=noise.dof)
+    base = fits.fit(())
+    model, fit = base.model, base.fit
     has_temp = bool(np.all(np.isfinite(np.asarray(windows.temp, float))))
     context = {'temp_span': c.temp_span, 'time_span': c.time_span, 'windows': len(windows),
                'has_temp': has_temp}
@@ -138,56 +145,64 @@ def _search(windows, baseline, gravity, rate_hz, noise, min_effect_mg, max_steps
                             rate_hz=rate_hz, threshold_mg=threshold,
                             predicted_accuracy_mg=accuracy)
     result.still = still
-    while candidates and len(result.steps) < max_steps:
-        tried = [t for t in (_try(name, model, fit, c, threshold) for name in candidates) if t]
-        result.candidates = [{key: t[key] for key in ('effect', 'F', 'p', 'worst_case_mg',
-                                                      'significant', 'large_enough')}
-                             | {'delta_chi2': float(t['drop']), 'delta_bic': t['bic']}
-                             for t in tried]
-        result.below_threshold = [cand for cand in result.candidates
-                                  if cand['significant'] and not cand['large_enough']]
-        supported = sorted((t for t in tried if t['significant'] and t['large_enough']),
-                           key=lambda t: -t['bic'])
-        if not supported:
-            break
-        # A tie (the columns are collinear in this session) goes to the effect with a
-        # measured cause: temperature is recorded, a drift with time is the catch-all.
-        tied = [t for t in supported if t['bic'] >= supported[0]['bic']
-                - 1e-3 * abs(supported[0]['drop'])]
-        tied.sort(key=lambda t: EFFECTS[t['effect']].variable == 'time')
-        supported.remove(tied[0])
-        supported.insert(0, tied[0])
-        alternatives = residual_probes(model, fit, c)
-        best = deferred = None
-        for cand in supported:
-            reason = (disagreement(cand, alternatives, model, fit, c, still)
-                      or lag_against_pair(cand, tried, model, fit, c))
-            if not reason and walk_against_drift(cand, tried, model, fit, c):
-                deferred = deferred or cand     # the straight drift first, if it holds
-                continue
-            if not reason:
-                best = cand
-                break
-            result.vetoed.append({'effect': cand['effect'], 'reason': reason,
-                                  'worst_case_mg': cand['worst_case_mg'], 'F': cand['F'],
-                                  'p': cand['p'], 'step': len(result.steps) + 1})
-            candidates.remove(cand['effect'])
-        best = best or deferred
-        if best is None:
-            break
-        best = _refine(best, model, fit, c, threshold)
-        _name_step(result, best, model, fit, c, supported)
-        model, fit = best['model'], best['fit']
-        result.fits.append(fit)
-        candidates.remove(best['effect'])
-    if len(result.steps) > 1:
-        model, fit = drop_redundant(result, c)
+    result.session_fits = fits
+    result.tested = candidates
+    selection = select(fits, candidates, max_steps) if max_steps > 0 else Selection()
+    result.selection = selection
+    record_steps(result, selection.chosen)
+    result.candidates = selection.candidates
+    result.below_threshold = [cand for cand in result.candidates
+                              if cand['significant'] and not cand['large_enough']]
+    result.vetoed = list(selection.vetoed)
     if result.steps and noise.coloured:
-        model, fit = within_slow_noise(result, c)
-    if fit.jac is not None:
-        result.probes = residual_probes(model, fit, c)
-        demote_partial(result, c)
+        within_slow_noise(result)
+    final = result.final_set
+    result.probes = residual_probes(final.model, final.fit, c)
+    withdraw_projections(result)
     return result
+
+
+def _contradiction(c, still, nu):
+    """
+    Return the check of an effect against measurements about it alone (``SessionFits`` veto).
+
+    A linear drift against the drift the still windows show; a random walk against the
+    roughness a walk of its size leaves (``agreement``).
+    """
+    def veto(name, setfit):
+        if name == 'bias_drift' and still is not None:
+            return still_contradicts(setfit.model, setfit.fit, name, still)
+        if name == 'bias_random_walk':
+            return walk_too_smooth(setfit.model, setfit.fit, c, setfit.basis, nu)
+        return ''
+    return veto
+
+
+def _naming_power(result):
+    """Simulate how large each tested effect not named must be for the workflow to name it."""
+    names = [n for n in result.tested if n not in result.missing_effects]
+    if not names or result.final_set is None:
+        result.naming_power = {}
+        return
+    fits = result.session_fits
+    # The scatter beyond the within-window level is simulated too: added to every window
+    # when the null uses the scatter between windows or the gap stays open; when the noise
+    # inside the windows is correlated (noise slower than a window may escape the level,
+    # step 2) and the gap is within the noise, the noise is scaled to the final model's
+    # own scatter (gap², at least 1).
+    coloured = bool(result.window_noise.coloured)
+    open_gap = result.noise_source == 'between windows' or not result.statistically_explained
+    excess = result.excess_scatter() if open_gap else 0.0
+    scale = max(1.0, result.gap_after ** 2) if coloured and not open_gap else 1.0
+    extra = None
+    if result.baseline == 'gn' and (result.ml_check or {}).get('checked'):
+        extra = fits._columns(result.final_set, EFFECTS['nonorthogonality'])
+    try:
+        result.naming_power = calibrate_power(
+            fits, result.final_set, names, coloured=coloured, excess=excess, ml_extra=extra,
+            scale=scale)
+    except (ValueError, np.linalg.LinAlgError):
+        result.naming_power = None
 
 
 def _fit_accuracy_mg(windows, gravity, baseline, rate_hz):
@@ -219,112 +234,6 @@ def _fit_accuracy_mg(windows, gravity, baseline, rate_hz):
     return mg, mg / float(np.sqrt(max(inflation, 1.0)))
 
 
-def _try(name, model, fit, c, threshold, bound=None):
-    """
-    Fit the current model plus effect ``name``; return its evidence, or None.
-
-    An effect with a searched parameter (the time constant of ``temperature_lag``) is
-    bound to the session with the value that best explains the current residuals
-    (linearised, ``Effect.search``), and that parameter counts in the F-test and the BIC.
-    """
-    n = len(c.readings)
-    effect = EFFECTS[name]
-    r = fit.residuals
-    q = np.linalg.qr(fit.jac)[0] if fit.jac is not None and fit.jac.shape[1] else None
-
-    def explained(bound):
-        j = model.effect_jacobian(fit.x, c, bound)
-        if q is not None:
-            j = j - q @ (q.T @ j)
-        u, sv, _ = np.linalg.svd(j, full_matrices=False)
-        u = u[:, sv > 1e-9 * max(sv.max(), 1e-300)]
-        return float(np.sum((u.T @ r) ** 2))
-
-    bound = effect.search(c, explained) if bound is None else bound
-    k = len(bound.param_names) + bound.searched
-    if fit.dof - k < 2:
-        return None
-    start = np.concatenate([fit.x, np.zeros(len(bound.param_names))])
-    try:
-        new_model, new_fit = fit_model(model.baseline, fit.effects + [bound], c, start)
-    except (ValueError, np.linalg.LinAlgError):
-        return None
-    new_fit.dof -= bound.searched
-    drop = fit.chi2 - new_fit.chi2
-    F = (drop / k) / max(new_fit.chi2 / new_fit.dof, 1e-300)
-    p = float(stats.f.sf(F, k, new_fit.dof))
-    bic = delta_bic(fit.chi2, drop, k, n)
-    params = new_model.split(new_fit.x)[2][name]
-    worst = effect_worst_case_mg(new_model, new_fit.x, c, name, params)
-    return {'effect': name, 'bound': bound, 'drop': drop, 'model': new_model, 'fit': new_fit,
-            'F': float(F), 'p': p, 'bic': float(bic), 'worst_case_mg': worst, 'k': k,
-            'significant': bool(p < P_SUPPORT and bic > 0),
-            'large_enough': bool(worst > threshold)}
-
-
-def _refine(best, model, fit, c, threshold):
-    """
-    Refine a searched parameter (a time constant) of the effect about to be named.
-
-    The search picked it on the linearised residuals; here the full model is refitted
-    over a narrow bracket (a factor 1.5 either way, in log) and the best fit is kept.
-    """
-    bound = best['bound']
-    if not bound.searched or not hasattr(bound, 'tau'):
-        return best
-    from scipy import optimize
-    effect = EFFECTS[best['effect']]
-    start = np.concatenate([fit.x, np.zeros(len(bound.param_names))])
-
-    def chi2(log_tau):
-        try:
-            return fit_model(model.baseline, fit.effects + [effect.bind(c, np.exp(log_tau))],
-                             c, start)[1].chi2
-        except (ValueError, np.linalg.LinAlgError):
-            return np.inf
-
-    centre = np.log(bound.tau)
-    found = optimize.minimize_scalar(chi2, bounds=(centre - 0.4, centre + 0.4),
-                                     method='bounded', options={'xatol': 0.01})
-    if not found.fun < best['fit'].chi2:
-        return best
-    refined = _try(best['effect'], model, fit, c, threshold,
-                   bound=effect.bind(c, np.exp(found.x)))
-    return refined if refined and refined['significant'] and refined['large_enough'] else best
-
-
-def _name_step(result, best, model, fit, c, supported):
-    """Record a named effect as a step, with the rivals it is confounded with."""
-    name, new_model, new_fit, drop = best['effect'], best['model'], best['fit'], best['drop']
-    a = model.true_accel(fit.x, c)
-    directions = a / np.linalg.norm(a, axis=1, keepdims=True)
-    T_new, _, all_params = new_model.split(new_fit.x)
-    params = all_params[name]
-    effect = best['bound']
-    evidence = {'F': best['F'], 'p': best['p'], 'delta_chi2': float(drop),
-                'delta_bic': best['bic'], 'params': params.tolist(),
-                'param_names': list(effect.param_names), 'unit': effect.unit,
-                'magnitude': effect.magnitude(params, c.gravity, np.diag(T_new)),
-                'worst_case_mg': best['worst_case_mg'], 'description': effect.description}
-    if getattr(effect, 'tau', None) is not None:
-        evidence['tau_s'] = float(effect.tau)
-    result.steps.append({'effect': name, 'gap_before': fit.gap, 'gap_after': new_fit.gap,
-                         'evidence': evidence,
-                         'where': strongest_correlations(fit.residuals, c, directions)})
-    for rival in supported[1:]:
-        # A rival only when the two are confounded in this session's design (their
-        # signatures, the Jacobian columns, correlate) and about as well supported: a
-        # rival with many more terms that only contains the winner's signature is not one.
-        if rival['effect'] == name or rival['bic'] < best['bic'] - RIVAL_BIC:
-            continue
-        alike = column_correlation(model, fit, c, effect, rival['bound'])
-        if alike > COLLINEAR:
-            result.ambiguities.append(
-                f'{name} and {rival["effect"]} are confounded in this session (their '
-                f'signatures correlate {alike:.2f}; chi² drops {drop:.1f} and '
-                f'{rival["drop"]:.1f}): ' + separation_advice(name, rival['effect'], c))
-
-
 def _confirm_with_ml(result, windows, search):
     """
     Name for a gn baseline only what the richer ml baseline also finds.
@@ -334,8 +243,10 @@ def _confirm_with_ml(result, windows, search):
     the ml search names it as well, or when it is nonorthogonality (the term gn lacks)
     and the ml baseline's cross-axis terms are significant and large enough beside the
     effects the ml search names (a time effect must not be taken for cross-axis terms).
-    When gn named something else, the gn search is run again over the confirmed
-    effects only, and the rest is listed in ``unconfirmed`` with the reason.
+    An effect the ml baseline cannot test in this session (too few windows for its
+    parameters beside ml's nine) is kept, and its step says so. When gn named something
+    else, the gn search is run again over the confirmed effects only, and the rest is listed
+    in ``unconfirmed`` with the reason.
     """
     try:
         # The same practical threshold: the question is the baseline, not the size.
@@ -346,7 +257,9 @@ def _confirm_with_ml(result, windows, search):
             step['confirmed'] = 'not checked with the ml baseline: ' + str(err)
         return result
     found = set(ml.missing_effects)
-    allowed = set(found)
+    untested = {name: reason for name, reason in ml.skipped.items()
+                if name != 'nonorthogonality' and name not in result.skipped}
+    allowed = set(found) | set(untested)
     cross = _cross_axis_evidence(ml, search)
     if cross['significant']:
         allowed.add('nonorthogonality')
@@ -366,7 +279,10 @@ def _confirm_with_ml(result, windows, search):
             again.unconfirmed.append({'effect': name, 'reason': reason})
         result = again
     for step in result.steps:
-        step['confirmed'] = ('found with the ml baseline too' if step['effect'] in found
+        name = step['effect']
+        step['confirmed'] = ('found with the ml baseline too' if name in found
+                             else 'not checked with the ml baseline: ' + untested[name]
+                             if name in untested
                              else "a term gn lacks: the ml fit's cross-axis terms are "
                              'significant')
     return result
@@ -390,14 +306,12 @@ def _cross_axis_evidence(ml, search):
         _, fit_gn = fit_model('gn', effects, c, start)
     except (ValueError, np.linalg.LinAlgError):
         return {'significant': False, 'p': 1.0, 'worst_case_mg': 0.0}
-    drop = fit_gn.chi2 - fit_ml.chi2
-    dof = max(fit_ml.dof, 1)
-    F = (drop / 3.0) / max(fit_ml.chi2 / dof, 1e-300)
-    p = float(stats.f.sf(F, 3, dof))
+    F, p, bic = (float(v[0]) for v in support_stats(
+        [fit_gn.chi2], [fit_ml.chi2], 3, fit_ml.dof, len(c.readings), ml.session_fits.nu))
     worst = 1000.0 * float(np.max(np.abs(T[np.triu_indices(3, 1)]) / np.diag(T)[[0, 0, 1]]))
-    significant = bool(p < P_SUPPORT and drop - 3 * np.log(len(c.readings)) > 0
-                       and worst > ml.threshold_mg)
-    return {'significant': significant, 'p': p, 'F': float(F), 'worst_case_mg': worst}
+    significant = bool(p < P_SUPPORT and bic > 0 and worst > ml.threshold_mg)
+    return {'significant': significant, 'p': p, 'F': F, 'delta_bic': bic,
+            'worst_case_mg': worst}
 
 
 def diagnose(samples, baseline='ml', gravity=9.80665, min_duration_s=DEFAULTS['min_duration_s'],

@@ -2,7 +2,6 @@
 
 import json
 import pathlib
-import time
 
 from accel_calib_ros.cli import main
 from accel_calib_ros.core.errors import CalibrationError
@@ -144,15 +143,15 @@ def test_held_out_residual_drops_with_the_found_effect():
     assert check['fit_windows'] + check['test_windows'] == N_WINDOWS
 
 
-def test_fast_enough_for_the_calibration_node():
+def test_a_long_null_session_names_nothing():
+    # The calibration node's case (windows only, noise level given); its speed is measured
+    # in bench/bench_diagnose.py (section speed).
     rng = np.random.default_rng(8)
     sensor = mpu9250_like(rng)
     windows = simulate_static_windows(sensor, random_directions(100, rng), rng, HOLD_S,
                                       COUNT, temperature=hump)
-    start = time.perf_counter()
     result = diagnose_windows(windows, 'ml', 9.80665, replicates=20)
-    assert time.perf_counter() - start < 1.0
-    assert result.missing_effects == []
+    assert result.missing_effects == [] and result.outcome == 'explained', result.text()
 
 
 def test_too_few_windows_is_a_calibration_error_and_gn_needs_fewer():
@@ -183,7 +182,11 @@ def test_correlated_noise_is_not_taken_for_a_model_error():
     result = diagnose(session.samples, 'ml', replicates=10)
     assert result.noise_inflation > 5.0
     assert result.missing_effects == [], result.text()
-    assert result.explained, result.text()
+    assert not result.outside_library, result.text()
+    # Window means about 4x noisier: the verdict is noise, or "cannot tell" when the naming
+    # simulated on this design would miss an effect of twice the practical threshold.
+    assert result.outcome in ('explained', 'cannot tell'), result.text()
+    assert (result.outcome == 'cannot tell') == bool(result.weak_effects())
 
 
 def test_cli_simulate_then_diagnose(tmp_path, capsys):
