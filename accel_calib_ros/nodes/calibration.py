@@ -30,8 +30,8 @@ from std_srvs.srv import Trigger
 from .calibration_intake import Intake, subscribe
 from .calibration_job import Job, run_job, worker
 from .calibration_params import check_rate, METHODS, PARAMS, sensor_param  # noqa: F401
-from .common import (calibration_path, declare_parameters, expand_path, make_directory,
-                     ParameterProblem, run, unsafe_output)
+from .common import (calibration_path, declare_parameters, expand_path, hardware_id,
+                     make_directory, ParameterProblem, run, unsafe_output)
 from ..core.advice import advise, coverage
 from ..core.collector import ImuCollector
 from ..core.errors import CalibrationError, InputError
@@ -47,11 +47,6 @@ PROCESS_PERIOD_S = 0.1
 """How often the samples taken in go to the detector, s."""
 COLLECT_BLOCK = 200
 """Samples handed to the collector at a time (the magnetometer samples of their time between)."""
-
-
-def hardware_id(frame_id):
-    """Return the ``/diagnostics`` hardware_id of a sensor: its IMU frame_id (one per sensor)."""
-    return frame_id or ''
 
 
 def safe_json(obj):
