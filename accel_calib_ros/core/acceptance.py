@@ -14,12 +14,13 @@ Checks that only make sense in one front end (the node's residual-to-noise ratio
 CLI's ``--force`` wording) stay there. numpy only, ROS-free.
 """
 
-from dataclasses import dataclass, field
 
 import numpy as np
 
+from .record import fresh, record
 
-@dataclass
+
+@record
 class Review:
     """
     Verdict on a fitted calibration.
@@ -32,12 +33,12 @@ class Review:
     """
 
     accepted: bool
-    reasons: list = field(default_factory=list)
-    warnings: list = field(default_factory=list)
-    poses: list = field(default_factory=list)
+    reasons: list = fresh(list)
+    warnings: list = fresh(list)
+    poses: list = fresh(list)
     converged: bool = True
     accuracy_ok: bool = True
-    physical_problems: list = field(default_factory=list)
+    physical_problems: list = fresh(list)
     cross_axis_cause: bool = False
 
     @property

@@ -22,13 +22,13 @@ standard library only (no scipy, no file I/O): reading and writing files lives i
 ``accel_calib_ros.dataio.calibration_file``.
 """
 
-from dataclasses import dataclass, field
 import datetime
 
 import numpy as np
 
 from .accelerometer.thermal import ThermalTable
 from .constants import G0
+from .record import fresh, record
 
 METHODS = ('ml', 'ml-bc', 'gn', 'ellipsoid')
 """Fitting methods a calibration can come from."""
@@ -109,7 +109,7 @@ def magnetometer_problems(T, hard_iron_uT, R, field_uT, dip_deg):
     return problems
 
 
-@dataclass
+@record
 class MagnetometerPart:
     """
     A fitted magnetometer calibration (interface.md §10): ``raw = T @ R @ field + hard_iron``.
@@ -161,7 +161,7 @@ def _optional_vector(value, size):
     return np.asarray(value, dtype=float).reshape(size).copy()
 
 
-@dataclass
+@record
 class Calibration:
     """
     A fitted accelerometer calibration (see module docstring for the model).
@@ -201,12 +201,12 @@ class Calibration:
     method: str = 'ml'
     covariance: np.ndarray = None
     residual_rms: float = float('nan')
-    noise_std: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    noise_std: np.ndarray = fresh(lambda: np.full(3, np.nan))
     observations: int = 0
     iterations: int = 0
     converged: bool = True
     seconds: float = 0.0
-    trace: list = field(default_factory=list)
+    trace: list = fresh(list)
     thermal: ThermalTable = None
     created: str = ''
     source: str = ''

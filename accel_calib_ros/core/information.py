@@ -40,7 +40,6 @@ windows cannot yet determine the model a weak prior over all candidates ranks th
 numpy only.
 """
 
-from dataclasses import dataclass
 import math
 
 import numpy as np
@@ -48,6 +47,7 @@ import numpy as np
 from .accuracy import sphere_average_matrix
 from .constants import G0
 from .poses import CANDIDATE_DIRECTIONS, CANDIDATE_NAMES, FACE_COUNT, fisher_rows
+from .record import record
 
 SIGMA_FLOOR = 1e-3
 """Error of a window mean that no averaging removes, m/s² (about 0.1 mg: bias
@@ -106,7 +106,7 @@ def window_variance(weights, noise_std, count, floor=None):
     return np.maximum(sigma ** 2 / np.maximum(w, 1e-300) + floor ** 2, 1e-18)
 
 
-@dataclass
+@record
 class Information:
     """
     The information static windows hold about a calibration (see the module docstring).
@@ -219,7 +219,7 @@ def information(readings, T, bias, gravity=G0, method='ml', weights=None,
     return info
 
 
-@dataclass
+@record
 class CrossAxis:
     """
     What the cross-axis terms that ``gn`` holds at zero cost (see the module docstring).

@@ -21,7 +21,6 @@ absent or insufficient is reported as such and never fails the others:
 numpy/scipy only (through the two fits); no files, no ROS.
 """
 
-from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
@@ -29,6 +28,7 @@ import numpy as np
 from .calibration import gyro_problems, magnetometer_problems, MagnetometerPart, MAX_GYRO_BIAS
 from .errors import CalibrationError, InputError
 from .finite import finite_list, finite_or_none
+from .record import fresh, record
 
 STATUSES = ('calibrated', 'absent', 'insufficient', 'refused', 'not fitted', 'not collected')
 """Words of :attr:`SensorOutcome.status`."""
@@ -53,7 +53,7 @@ about 2° of heading where the horizontal field is 25 µT.
 """
 
 
-@dataclass
+@record
 class SensorOutcome:
     """
     One sensor's result beside the accelerometer.
@@ -72,7 +72,7 @@ class SensorOutcome:
     result: object = None
     limit: float = float('nan')
     unit: str = ''
-    details: dict = field(default_factory=dict)
+    details: dict = fresh(dict)
 
     @property
     def calibrated(self):

@@ -18,12 +18,12 @@ import math
 
 import numpy as np
 
-from .record import Record
 from ..core.acceptance import review
 from ..core.constants import G0
 from ..core.errors import CalibrationError, InputError
 from ..core.outcomes import (DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR, json_keys,
                              SensorOutcome, sensors_dict)
+from ..core.record import Record
 
 THERMAL_MODES = ('auto', 'on', 'off')
 MIN_WINDOW_NOISE = 0.005

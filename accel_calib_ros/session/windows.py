@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from .record import Record
+from ..core.record import Record
 
 DEFAULT_RATE_HZ = 100.0
 """Rate assumed for the weight cap while the sample rate is not known yet, Hz."""

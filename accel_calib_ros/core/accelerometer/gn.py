@@ -8,15 +8,15 @@ the normal equations of eq. 16-17. In this package's convention ``raw = T true +
 that is ``T = diag(1 / k)`` and ``bias = d``.
 """
 
-from dataclasses import dataclass, field
 import time
 
 import numpy as np
 
 from ..errors import CalibrationError
+from ..record import fresh, record
 
 
-@dataclass
+@record
 class GNResult:
     """
     Outcome of :func:`fit_gn`.
@@ -34,7 +34,7 @@ class GNResult:
     iterations: int
     converged: bool
     seconds: float
-    trace: list = field(default_factory=list)
+    trace: list = fresh(list)
 
     @property
     def T(self):

@@ -20,7 +20,6 @@ it converge from the ellipsoid start on real data; near the optimum it is the
 undamped Newton iteration of the paper and converges quadratically.
 """
 
-from dataclasses import dataclass, field
 import time
 from typing import NamedTuple
 
@@ -28,6 +27,7 @@ import numpy as np
 
 from .ellipsoid import apply, BLOCK, check_scatter, cross_product, fit_ellipsoid_columns, UPPER
 from ..errors import CalibrationError
+from ..record import fresh, record
 
 PARAMETER_NAMES = ('T_xx', 'T_xy', 'T_xz', 'T_yy', 'T_yz', 'T_zz', 'b_x', 'b_y', 'b_z')
 """Order of the 9 calibration parameters in vectors and covariances."""
@@ -67,7 +67,7 @@ def _normalise(v):
     return v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
-@dataclass
+@record
 class MLResult:
     """
     Outcome of :func:`fit_ml`, in the units of the readings.
@@ -94,7 +94,7 @@ class MLResult:
     iterations: int
     converged: bool
     seconds: float
-    trace: list = field(default_factory=list)
+    trace: list = fresh(list)
 
 
 class _System(NamedTuple):

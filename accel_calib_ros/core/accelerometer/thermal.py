@@ -22,15 +22,16 @@ geometry that cannot separate its nine coefficients is reported and skipped (its
 neighbours, or no drift at all, take over).
 """
 
-from dataclasses import dataclass, field
 
 import numpy as np
+
+from ..record import fresh, record
 
 MIN_WINDOWS_PER_BAND = 12
 """Fewest static windows a band needs for its nine coefficients."""
 
 
-@dataclass
+@record
 class ThermalBand:
     """
     Drift coefficients of one temperature band.
@@ -81,12 +82,12 @@ class ThermalBand:
                    None if gyro is None else np.asarray(gyro, float).reshape(3))
 
 
-@dataclass
+@record
 class ThermalTable:
     """Band drift tables and their continuous lookup."""
 
     band_width_c: float
-    bands: list = field(default_factory=list)
+    bands: list = fresh(list)
 
     @property
     def usable(self):
