@@ -1,60 +1,12 @@
 """
 ROS 2 node ``accel_correction``: apply the saved calibration to the live IMU stream.
 
-Subscribes to ``imu/data_raw`` (sensor_msgs/Imu) and ``imu/temperature``
-(sensor_msgs/Temperature) and publishes ``imu/corrected`` (sensor_msgs/Imu): the same
-message with
-
-- ``linear_acceleration = L · Calibration.correct(raw, latest temperature)`` and its
-  covariance the calibration's per-sample covariance (row-major, (m/s²)²);
-- ``angular_velocity = L · (raw − gyro bias)`` when the calibration carries a gyro
-  bias (interface.md §6; per temperature band when it has them); its covariance is what is
-  left: the driver's noise covariance as it came. Without a gyro bias the rate passes
-  through and, when the driver reports a covariance, the datasheet zero-rate offset
-  (:data:`UNCALIBRATED_GYRO_BIAS_STD`)² is added to its diagonal;
-- with a ``gyro`` part (interface.md §9) the rate is ``L · Tg⁻¹ · (raw − bias)`` and a known
-  driver covariance C becomes ``L Tg⁻¹ C Tg⁻ᵀ Lᵀ`` plus what the calibration's own
-  uncertainty adds at that rate: ``(predicted accuracy · |ω|)² / 3`` per axis (the RMS
-  relative rate error over all directions, spread over the three axes); an unknown
-  driver covariance (all zeros, or ``[0] = -1``) passes as it came;
-- with a ``magnetometer`` part (interface.md §10), ``imu/mag`` (sensor_msgs/MagneticField,
-  tesla) is corrected into ``imu/mag_corrected`` (tesla, same header and frame):
-  ``L · Rᵀ · T⁻¹ · (raw − hard iron)``, covariance the driver's mapped the same way
-  (or, when it reports none, the fit's per-sample noise) plus
-  ``(predicted accuracy)² / 3`` per axis. Without a magnetometer part nothing is
-  published there, and ``/diagnostics`` says whether ``imu/mag`` arrives;
-- ``L`` the level trim (``level_roll_pitch_rad`` in the file, measured by ``~/level``),
-  identity without one. The orientation and its covariance pass through untouched (the
-  driver sends identity with ``orientation_covariance[0] = -1``), as does the header,
-  except the frame_id while a trim is applied: the axes are the levelled ones, so
-  ``imu/corrected`` and ``imu/mag_corrected`` carry ``level_frame_id`` (default: the
-  raw frame_id + ``_level``);
-- the field monitor (issue 24, :mod:`.correction_monitor`, ``core.monitor``): in still
-  periods the gyro bias change is re-estimated and subtracted from ``angular_velocity``,
-  and the calibration is checked against gravity and its temperature range
-  (``/diagnostics``, ``~/health``, ``~/reset_gyro_bias``).
-
-The math is :class:`core.correction.Corrector` (the filter); this module is the node:
-parameters, messages, diagnostics. One node per process: the Imu path is a callback
-group of its own that :func:`.common.run` spins on an executor of its own, sharing the
-node with the executor of everything else, so a ``__node:=`` remap names one node.
-
-Hot reload: ``calibration_file`` is checked every ``reload_period_s``; when its
-(mtime, size, inode) changes it is read with the one validating loader
-(:func:`dataio.calibration_file.load_calibration`), and only a valid file replaces the
-calibration in use: a bad file gives one logged error, the node keeps the last good
-calibration and ``/diagnostics`` says so. Without any calibration the data pass
-through unchanged with a large diagonal covariance of (:data:`UNCALIBRATED_STD`)² per
-axis, and ``/diagnostics`` warns. A message whose output would hold a non-finite
-number is dropped and counted, never published. Outside the calibrated temperature
-range (plus ``temperature_margin_c``) a throttled warning and ``/diagnostics`` say so.
-
-``~/level`` (std_srvs/Trigger): with the robot resting level, the mean of the last
-``level_duration_s`` of corrected acceleration gives the roll and pitch of the sensor
-on the robot (:mod:`core.level`); they are stored in the calibration file (atomically)
-and applied from then on.
-
-Imports neither scipy nor matplotlib (kept lean: see bench/bench_correction.py).
+``imu/data_raw``, ``imu/temperature``, ``imu/mag`` in; ``imu/corrected`` and
+``imu/mag_corrected`` out, compensated for the current temperature, levelled when a trim
+is stored (then in ``level_frame_id``), with the field monitor's gyro bias at rest and
+calibration health (:mod:`.correction_monitor`). The math is
+:class:`core.correction.Corrector`; this module is the shell: parameters, messages,
+hot reload, ``/diagnostics``. Behaviour in full: docs/correction_node.md.
 """
 
 from collections import deque
