@@ -15,7 +15,7 @@ import statistics
 from diagnostic_msgs.msg import DiagnosticArray
 import pytest
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from ros_helpers import Collector, Processes, stop_node
+from ros_helpers import Collector, stop_node
 from sensor_msgs.msg import Imu
 
 pytestmark = pytest.mark.ros
@@ -23,15 +23,6 @@ pytestmark = pytest.mark.ros
 DRIVER = 'accel_calib_ros.nodes.driver'
 IMU, DIAG = 'imu/data_raw', '/diagnostics'
 RATE = 200.0
-
-
-@pytest.fixture
-def procs(tmp_path):
-    group = Processes(tmp_path)
-    try:
-        yield group
-    finally:
-        group.stop_all()
 
 
 @pytest.fixture

@@ -12,22 +12,13 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 import pytest
-from ros_helpers import Collector, Processes, stop_node, wait_exit
+from ros_helpers import Collector, stop_node, wait_exit
 from sensor_msgs.msg import Imu, Temperature
 
 pytestmark = pytest.mark.ros
 
 DRIVER = 'accel_calib_ros.nodes.driver'
 IMU, TEMP, DIAG = 'imu/data_raw', 'imu/temperature', '/diagnostics'
-
-
-@pytest.fixture
-def procs(tmp_path):
-    group = Processes(tmp_path)
-    try:
-        yield group
-    finally:
-        group.stop_all()
 
 
 @pytest.fixture
