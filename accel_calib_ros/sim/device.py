@@ -327,7 +327,11 @@ class VirtualSensor:
         temp = np.full(n, a.temp_ramp[1] if a.temp_ramp else a.temp)
         true = np.tile(a.gravity * self.directions[-1], (n, 1))
         accel = self.sensor.measure(true, self.rng, temp, t)
-        gyro = self.rng.standard_normal((n, 3)) * self.sensor.gyro_noise_std
+        # Held still: the true rate is zero, the raw rate its bias and noise (as in the
+        # script: raw = gyro_T · true + bias + noise), so a held pose after the script
+        # reads like any held pose of it.
+        gyro = self.sensor.gyro_bias + self.rng.standard_normal((n, 3)) \
+            * self.sensor.gyro_noise_std
         return self.converter.to_counts_array(accel, temp, gyro), self._held_mag(t)
 
     def _held_mag(self, t):
