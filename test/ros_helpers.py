@@ -238,6 +238,23 @@ class Collector:
         self.close()
 
 
+def serial_status(collector, topic='/diagnostics'):
+    """
+    Return the newest driver status on /diagnostics as a dict (or None).
+
+    Its key-value pairs, plus ``level`` and ``hardware_id``; ``collector`` records
+    ``topic`` (diagnostic_msgs/DiagnosticArray).
+    """
+    for array in reversed(collector.messages[topic]):
+        for status in array.status:
+            if status.name == 'mpu9250_driver: serial':
+                values = {kv.key: kv.value for kv in status.values}
+                values['level'] = status.level
+                values['hardware_id'] = status.hardware_id
+                return values
+    return None
+
+
 @contextlib.contextmanager
 def nodes_in_a_context(**defaults):
     """

@@ -22,7 +22,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from firmware_tools import build_firmware, build_harness, ensure_toolchain
 import pytest
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from ros_helpers import Collector, Processes, stop_node
+from ros_helpers import Collector, Processes, serial_status, stop_node
 from sensor_msgs.msg import Imu, MagneticField, Temperature
 
 DRIVER = 'accel_calib_ros.nodes.driver'
@@ -243,14 +243,6 @@ def test_no_magnetometer_no_block(board, tmp_path, args):
     info = parser.take_infos()[-1]
     assert len(frames) > 500 and all(f.mag is None for f in frames)
     assert (info.mag_status, info.asa, info.status) == (MAG_ABSENT, (0, 0, 0), 0)
-
-
-def serial_status(collector):
-    for array in reversed(collector.messages[DIAG]):
-        for status in array.status:
-            if status.name == 'mpu9250_driver: serial':
-                return {kv.key: kv.value for kv in status.values}
-    return None
 
 
 def run_chain(board, elf, tmp_path, seconds, baud, *board_args):

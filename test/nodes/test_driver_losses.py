@@ -15,7 +15,7 @@ import statistics
 from diagnostic_msgs.msg import DiagnosticArray
 import pytest
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from ros_helpers import Collector, stop_node
+from ros_helpers import Collector, serial_status, stop_node
 from sensor_msgs.msg import Imu
 
 pytestmark = pytest.mark.ros
@@ -33,14 +33,6 @@ def collector():
         yield c
     finally:
         c.close()
-
-
-def serial_status(collector):
-    for array in reversed(collector.messages[DIAG]):
-        for status in array.status:
-            if status.name == 'mpu9250_driver: serial':
-                return {kv.key: kv.value for kv in status.values}
-    return None
 
 
 def run(procs, collector, tmp_path, device_args, seconds, **params):

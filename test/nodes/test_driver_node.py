@@ -12,7 +12,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 import pytest
-from ros_helpers import Collector, stop_node, wait_exit
+from ros_helpers import Collector, serial_status, stop_node, wait_exit
 from sensor_msgs.msg import Imu, Temperature
 
 pytestmark = pytest.mark.ros
@@ -42,18 +42,6 @@ def start_pair(procs, tmp_path, device_args=(), **params):
 
 def stamp_s(msg):
     return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-
-
-def serial_status(collector):
-    """Return the newest driver status on /diagnostics as a dict (or None)."""
-    for array in reversed(collector.messages[DIAG]):
-        for status in array.status:
-            if status.name == 'mpu9250_driver: serial':
-                values = {kv.key: kv.value for kv in status.values}
-                values['level'] = status.level
-                values['hardware_id'] = status.hardware_id
-                return values
-    return None
 
 
 def test_stream_reaches_the_graph(procs, collector, tmp_path):
