@@ -15,8 +15,6 @@ import sys
 from ..dataio.formats import MAX_MESSAGE, message_line  # noqa: F401 - one line, capped
 
 
-MAX_WEIGHT_S = 5.0
-"""Window weights are capped at this many seconds of samples (see StaticWindows.weights)."""
 MAX_POSES = 100_000
 """Most poses a simulated session may have."""
 
@@ -124,6 +122,7 @@ def to_si(samples, args, check=True):
 def add_window_args(p):
     """Add the static-window detector options to parser ``p``."""
     from ..core.windows import DEFAULTS
+    from ..session.settings import DEFAULTS as SESSION
     g = p.add_argument_group('static windows')
     g.add_argument('--min-window-s', type=ranged(0.01, 3600.0),
                    default=DEFAULTS['min_duration_s'],
@@ -132,7 +131,7 @@ def add_window_args(p):
     g.add_argument('--threshold-factor', type=ranged(1.0, 1e3),
                    default=DEFAULTS['threshold_factor'],
                    help='still when moving std < factor x noise floor (default %(default)s)')
-    g.add_argument('--max-weight-s', type=ranged(1e-3, 1e6), default=MAX_WEIGHT_S,
+    g.add_argument('--max-weight-s', type=ranged(1e-3, 1e6), default=SESSION.max_weight_s,
                    help='cap of a window weight, seconds of samples (default %(default)s)')
 
 

@@ -37,6 +37,12 @@ PARAMETER_NAMES = ('T_xx', 'T_xy', 'T_xz', 'T_yy', 'T_yz', 'T_zz', 'b_x', 'b_y',
 """Order of the 9 calibration parameters in covariances (same as ``core.ml``)."""
 
 
+MAX_SCALE_ERROR = 0.2
+"""Largest accelerometer scale error ``|T_ii - 1|`` believed (consumer MEMS: a few per cent)."""
+MAX_CROSS_AXIS = 0.1
+"""Largest accelerometer cross-axis term ``|T_ij| / T_ii`` believed."""
+MAX_BIAS_G = 0.25
+"""Largest accelerometer bias believed, g."""
 MAX_GYRO_BIAS = 1.0
 """Largest gyroscope bias believed, rad/s (57 °/s: a larger one means other units)."""
 GYRO_T_DIAGONAL_RANGE = (0.5, 2.0)
@@ -366,7 +372,8 @@ class Calibration:
             cov = cov + acc / 6.0
         return cov
 
-    def physical_problems(self, max_scale_error=0.2, max_cross_axis=0.1, max_bias_g=0.25):
+    def physical_problems(self, max_scale_error=MAX_SCALE_ERROR, max_cross_axis=MAX_CROSS_AXIS,
+                          max_bias_g=MAX_BIAS_G):
         """Reasons this calibration is not physical for an accelerometer in m/s², or []."""
         problems = []
         scale_error = np.abs(np.diag(self.T) - 1.0)

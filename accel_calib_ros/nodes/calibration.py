@@ -37,7 +37,7 @@ from ..core.collector import ImuCollector
 from ..core.errors import CalibrationError, InputError
 from ..core.finite import finite_or_none
 from ..core.windows import DEFAULTS, OnlineStaticDetector
-from ..session.accept import CollectedImu, NODE, Outcome, Settings, SI_UNITS
+from ..session.accept import CollectedImu, NODE, refused, Settings, SI_UNITS
 from ..session.windows import Window, WindowSet
 
 LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
@@ -394,8 +394,8 @@ class CalibrationNode(Node):
             outcome, notes = (await done).result()
         except Exception as err:        # noqa: B902 - a bug must not take the node down
             self.get_logger().error(f'~/calibrate failed: {type(err).__name__}: {err}')
-            outcome, notes = Outcome(refusal=f'internal error: {type(err).__name__}: {err}'), []
-            outcome.gyro, outcome.magnetometer = CollectedImu(None, None).not_fitted()
+            outcome, notes = refused(f'internal error: {type(err).__name__}: {err}',
+                                     words=NODE), []
         finally:
             self._solving = None
         self._report(outcome, notes, response)
@@ -434,8 +434,7 @@ class CalibrationNode(Node):
         windows = self.window_set(self.detector.peek())
         history = self.history_path() if self.params['history'] else None
         return Job(windows=windows,
-                   obs=windows.observations(self.params['max_weight_s'],
-                                            self.detector.rate_hz),
+                   rate_hz=self.detector.rate_hz,
                    settings=self.settings(), imu=CollectedImu(self.imu.snapshot(), windows),
                    path=self.path, history=history,
                    now=self.get_clock().now().nanoseconds * 1e-9)
@@ -469,6 +468,7 @@ class CalibrationNode(Node):
                         band_width_c=p['band_width_c'],
                         max_predicted_error=p['max_predicted_error'],
                         max_residual_ratio=p['max_residual_ratio'], refuse_unphysical=True,
+                        max_weight_s=p['max_weight_s'],
                         max_scale_error=p['max_scale_error'],
                         max_cross_axis=p['max_cross_axis'], max_bias_g=p['max_bias_g'],
                         max_gyro_error=p['max_gyro_error'], max_mag_error=p['max_mag_error'],
