@@ -1,19 +1,19 @@
 """
 ``accel-calib guide``: a calibration walked through live in the terminal.
 
-It reads a serial port (§1 frames), a ROS topic or a simulated sensor held by a simulated
-person, and shows where gravity points
+It reads a serial port (§1 frames, through ``dataio.link`` as the driver does), a ROS
+topic or a simulated sensor held by a simulated person, and shows where gravity points
 now against the pose asked for, how long to keep holding, the windows collected and the
 predicted accuracy against the target; it draws the board in the next pose, says
 "enough", and ends the session as ``fit`` and the node do (``session.finish``: the same
 acceptance, the file written atomically, the history).
 
 Only the standard library and numpy (and the session floor's settings) are imported here
-at module level; rich, pyserial and rclpy are imported when the guide needs them.
+at module level; rich, the serial link and rclpy are imported when the guide needs them.
 
 When the source gives the angular rate (serial frames, an Imu topic with it, the
 simulation) the screen says which rotation axis the moves have not turned about yet, and
-with a magnetometer (``--mag-topic``, the simulation) how much of the
+with a magnetometer (version-2 frames, ``--mag-topic``, the simulation) how much of the
 sphere of field directions it has seen and where to turn; at the end the gyroscope's
 scale and misalignment and the magnetometer are fitted and stored beside the
 accelerometer when they pass their limits (as ``fit``), else reported.
@@ -65,11 +65,17 @@ def add_arguments(p):
                         '"simulated-SEED")')
     p.add_argument('--timeout', type=positive, default=None,
                    help='give up after this many wall-clock seconds')
-    g = p.add_argument_group('serial port')
+    from ..dataio.wire.chips import DEFAULT_CHIP
+    g = p.add_argument_group('serial port (read as the driver reads it: the chip and its '
+                             "ranges from the firmware's info frame)")
     g.add_argument('--baud', type=int, default=1000000)
     g.add_argument('--ascii', action='store_true', help='ASCII line format instead of frames')
-    g.add_argument('--accel-range', type=int, default=2, choices=(2, 4, 8, 16))
-    g.add_argument('--gyro-range', type=int, default=250, choices=(250, 500, 1000, 2000))
+    g.add_argument('--accel-range', type=int, default=2,
+                   choices=tuple(DEFAULT_CHIP.accel_lsb_per_g),
+                   help='accelerometer full scale, ±g, without an info frame (default 2)')
+    g.add_argument('--gyro-range', type=int, default=250,
+                   choices=tuple(DEFAULT_CHIP.gyro_lsb_per_dps),
+                   help='gyroscope full scale, ±°/s, without an info frame (default 250)')
     g = p.add_argument_group('ROS topic')
     g.add_argument('--temp-topic', help='sensor_msgs/Temperature topic (optional)')
     g.add_argument('--mag-topic', help='sensor_msgs/MagneticField topic, tesla (optional)')

@@ -39,9 +39,10 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..core.constants import G0
+from ..dataio.wire.chips import AK8963, DEFAULT_CHIP
 
 
-MPU9250_LSB = G0 / 16384.0
+MPU9250_LSB = G0 / DEFAULT_CHIP.accel_lsb_per_g[2]
 """Accelerometer ADC step at ±2 g, m/s² per count."""
 
 
@@ -195,7 +196,7 @@ def mpu9250_like(rng, rate_hz=100.0, effects=()):
     return model
 
 
-AK8963_LSB_UT = 0.15
+AK8963_LSB_UT = AK8963.ut_per_count[16]
 """AK8963 16-bit output step, µT per count."""
 
 
