@@ -15,13 +15,14 @@ The words of a front door (its option or parameter names, its hints) come in as 
 """
 
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
 from .calibration import MAX_BIAS_G, MAX_CROSS_AXIS, MAX_SCALE_ERROR
-from .record import fresh, record
 
 
-@record
+@dataclass
 class Review:
     """
     Verdict on a fitted calibration.
@@ -34,12 +35,12 @@ class Review:
     """
 
     accepted: bool
-    reasons: list = fresh(list)
-    warnings: list = fresh(list)
-    poses: list = fresh(list)
+    reasons: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
+    poses: list = field(default_factory=list)
     converged: bool = True
     accuracy_ok: bool = True
-    physical_problems: list = fresh(list)
+    physical_problems: list = field(default_factory=list)
     cross_axis_cause: bool = False
 
     @property

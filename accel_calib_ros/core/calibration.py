@@ -22,19 +22,19 @@ standard library only (no scipy, no file I/O): reading and writing files lives i
 ``accel_calib_ros.dataio.calibration_file``.
 """
 
+from dataclasses import dataclass, field
 import datetime
 
 import numpy as np
 
 from .accelerometer.thermal import ThermalTable
 from .constants import G0
-from .record import fresh, record
 
 METHODS = ('ml', 'ml-bc', 'gn', 'ellipsoid')
 """Fitting methods a calibration can come from."""
 
 PARAMETER_NAMES = ('T_xx', 'T_xy', 'T_xz', 'T_yy', 'T_yz', 'T_zz', 'b_x', 'b_y', 'b_z')
-"""Order of the 9 calibration parameters in covariances (same as ``core.ml``)."""
+"""Order of the 9 calibration parameters in vectors and covariances (every fit's)."""
 
 
 MAX_SCALE_ERROR = 0.2
@@ -115,7 +115,7 @@ def magnetometer_problems(T, hard_iron_uT, R, field_uT, dip_deg):
     return problems
 
 
-@record
+@dataclass
 class MagnetometerPart:
     """
     A fitted magnetometer calibration (interface.md §10): ``raw = T @ R @ field + hard_iron``.
@@ -167,7 +167,7 @@ def _optional_vector(value, size):
     return np.asarray(value, dtype=float).reshape(size).copy()
 
 
-@record
+@dataclass
 class Calibration:
     """
     A fitted accelerometer calibration (see module docstring for the model).
@@ -207,12 +207,12 @@ class Calibration:
     method: str = 'ml'
     covariance: np.ndarray = None
     residual_rms: float = float('nan')
-    noise_std: np.ndarray = fresh(lambda: np.full(3, np.nan))
+    noise_std: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     observations: int = 0
     iterations: int = 0
     converged: bool = True
     seconds: float = 0.0
-    trace: list = fresh(list)
+    trace: list = field(default_factory=list)
     thermal: ThermalTable = None
     created: str = ''
     source: str = ''

@@ -22,6 +22,7 @@ numpy/scipy only (through the two fits); no files, no ROS, no front door's words
 limit's name comes in as an argument).
 """
 
+from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
@@ -29,7 +30,6 @@ import numpy as np
 from .calibration import gyro_problems, magnetometer_problems, MagnetometerPart, MAX_GYRO_BIAS
 from .errors import CalibrationError, InputError
 from .finite import finite_list, finite_or_none
-from .record import fresh, record
 
 STATUSES = ('calibrated', 'absent', 'insufficient', 'refused', 'not fitted', 'not collected')
 """Words of :attr:`SensorOutcome.status`."""
@@ -54,7 +54,7 @@ about 2° of heading where the horizontal field is 25 µT.
 """
 
 
-@record
+@dataclass
 class SensorOutcome:
     """
     One sensor's result beside the accelerometer.
@@ -73,7 +73,7 @@ class SensorOutcome:
     result: object = None
     limit: float = float('nan')
     unit: str = ''
-    details: dict = fresh(dict)
+    details: dict = field(default_factory=dict)
 
     @property
     def calibrated(self):

@@ -24,7 +24,6 @@ from .settings import (FIT, GUIDE, NODE, Settings, SI_UNITS, THERMAL_MODES,  # n
 from ..core.acceptance import review
 from ..core.errors import CalibrationError, InputError
 from ..core.outcomes import absent, json_keys, SensorOutcome, sensors_dict
-from ..core.record import Record
 
 MIN_WINDOW_NOISE = 0.005
 """Floor of the expected window-mean error, m/s² (about 0.5 mg).
@@ -38,7 +37,7 @@ NOT_FITTED = 'not fitted: the accelerometer calibration was refused'
 """Reason of a gyroscope or magnetometer that was not fitted because of the accelerometer."""
 
 
-class Outcome(Record):
+class Outcome:
     """
     The result of a session: :func:`fit_and_accept`, then ``finish.finish_session``.
 
@@ -64,10 +63,30 @@ class Outcome(Record):
         two as errors of its arguments (exit status 2).
     """
 
-    FIELDS = {'calibration': None, 'verdict': None, 'refusal': None, 'gyro': None,
-              'magnetometer': None, 'warnings': list, 'thermal': False, 'observations': 0,
-              'carried': list, 'saved_to': None, 'limit': math.nan, 'history': None,
-              'notes': list, 'cause': None}
+    __slots__ = ('calibration', 'verdict', 'refusal', 'gyro', 'magnetometer', 'warnings',
+                 'thermal', 'observations', 'carried', 'saved_to', 'limit', 'history', 'notes',
+                 'cause')
+
+    def __init__(self, calibration=None, verdict=None, refusal=None, gyro=None,
+                 magnetometer=None, warnings=None, thermal=False, observations=0, carried=None,
+                 saved_to=None, limit=math.nan, history=None, notes=None, cause=None):
+        self.calibration, self.verdict, self.refusal = calibration, verdict, refusal
+        self.gyro, self.magnetometer = gyro, magnetometer
+        self.warnings = [] if warnings is None else warnings
+        self.thermal, self.observations = thermal, observations
+        self.carried = [] if carried is None else carried
+        self.saved_to, self.limit, self.history = saved_to, limit, history
+        self.notes = [] if notes is None else notes
+        self.cause = cause
+
+    def replace(self, **changes):
+        """Return a copy with ``changes``."""
+        fields = {name: getattr(self, name) for name in self.__slots__}
+        fields.update(changes)
+        return Outcome(**fields)
+
+    def __repr__(self):
+        return f'Outcome(refusal={self.refusal!r}, observations={self.observations})'
 
     @property
     def accepted(self):

@@ -162,7 +162,7 @@ def test_every_door_refuses_the_residual_in_its_own_words():
                                           words=FIT)).refusal is None
 
 
-def test_records_build_like_dataclasses_for_less_start_up():
+def test_the_session_records_are_plain_and_fresh():
     from accel_calib_ros.session.accept import Outcome
     a, b = Outcome(), Outcome(refusal='x')
     assert a.warnings == [] and a.warnings is not b.warnings        # a fresh list each
@@ -173,3 +173,5 @@ def test_records_build_like_dataclasses_for_less_start_up():
         Settings(metod='ml')
     with pytest.raises(TypeError):
         Observations(np.zeros((1, 3)), readings=np.zeros((1, 3)))
+    with pytest.raises(AttributeError):
+        a.refusl = 'typo'                                # __slots__: a typo is an error
