@@ -65,12 +65,9 @@ def add_data_args(p):
     add_time_unit_arg(p)
 
 
-UNITS = ('m/s2', 'g', 'counts')
-"""Units of ax, ay, az a recording may be in (as ``dataio.units.UNITS``)."""
-
-
 def add_unit_args(p):
     """Add ``--units`` and the raw-count options (``dataio.units`` converts)."""
+    from ..dataio.units import UNITS
     g = p.add_argument_group('unit of ax, ay, az (files written hold m/s²)')
     g.add_argument('--units', choices=UNITS, default=None,
                    help='m/s2 (default), g (standard gravity) or counts (raw ADC codes: '
@@ -122,7 +119,7 @@ def to_si(samples, args, check=True):
 def add_window_args(p):
     """Add the static-window detector options to parser ``p``."""
     from ..core.windows import DEFAULTS
-    from ..session.settings import DEFAULTS as SESSION
+    from ..session.settings import DEFAULT_SETTINGS
     g = p.add_argument_group('static windows')
     g.add_argument('--min-window-s', type=ranged(0.01, 3600.0),
                    default=DEFAULTS['min_duration_s'],
@@ -131,7 +128,7 @@ def add_window_args(p):
     g.add_argument('--threshold-factor', type=ranged(1.0, 1e3),
                    default=DEFAULTS['threshold_factor'],
                    help='still when moving std < factor x noise floor (default %(default)s)')
-    g.add_argument('--max-weight-s', type=ranged(1e-3, 1e6), default=SESSION.max_weight_s,
+    g.add_argument('--max-weight-s', type=ranged(1e-3, 1e6), default=DEFAULT_SETTINGS.max_weight_s,
                    help='cap of a window weight, seconds of samples (default %(default)s)')
 
 

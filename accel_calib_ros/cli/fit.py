@@ -22,9 +22,9 @@ from ..core.windows import DEFAULTS, detect_static_windows
 
 def add_arguments(p):
     """Add the options of ``fit`` to its parser."""
-    from ..session.settings import DEFAULTS
+    from ..session.settings import DEFAULT_SETTINGS as S
     add_data_args(p)
-    p.add_argument('--method', choices=METHODS, default=DEFAULTS.method,
+    p.add_argument('--method', choices=METHODS, default=S.method,
                    help='ml: maximum likelihood (Sun & Xu); ml-bc: ML with bootstrap bias '
                         'correction; gn: 6-parameter Gauss-Newton (Gui Yi); ellipsoid: '
                         'algebraic LS (default ml)')
@@ -33,16 +33,16 @@ def add_arguments(p):
                         'every row is one observation (default windows)')
     p.add_argument('--thermal', action='store_true',
                    help='also fit temperature-band drift tables (needs temp)')
-    p.add_argument('--band-width', type=ranged(0.1, 1000.0), default=DEFAULTS.band_width_c,
+    p.add_argument('--band-width', type=ranged(0.1, 1000.0), default=S.band_width_c,
                    help='temperature band width, °C (default %(default)s)')
-    p.add_argument('--gravity', type=GRAVITY, default=DEFAULTS.gravity,
+    p.add_argument('--gravity', type=GRAVITY, default=S.gravity,
                    help='local gravity magnitude, m/s² (default %(default)s)')
     p.add_argument('--max-predicted-error', type=ranged(1e-9, 1e3),
-                   default=DEFAULTS.max_predicted_error, metavar='M_S2',
+                   default=S.max_predicted_error, metavar='M_S2',
                    help='refuse a fit whose predicted accuracy (RMS error at 1 g over all '
                         'orientations) is worse than this, m/s² (default %(default)s)')
     p.add_argument('--max-residual-ratio', type=ranged(1.0, 1e6),
-                   default=DEFAULTS.max_residual_ratio, metavar='RATIO',
+                   default=S.max_residual_ratio, metavar='RATIO',
                    help='refuse a fit whose gravity-norm residual RMS exceeds this many times '
                         'the error expected of a window mean from its noise (the sensor moved, '
                         'or the model does not fit it; default %(default)s, as the node)')
@@ -66,16 +66,16 @@ def add_arguments(p):
 
 def add_imu_arguments(p):
     """Add the options of the gyroscope and magnetometer parts (interface.md §9, §10)."""
-    from ..session.settings import DEFAULTS
+    from ..session.settings import DEFAULT_SETTINGS as S
     g = p.add_argument_group('gyroscope and magnetometer (fitted whenever the data have '
                              'gx gy gz / mx my mz)')
-    g.add_argument('--max-gyro-error', type=ranged(1e-9, 1.0), default=DEFAULTS.max_gyro_error,
+    g.add_argument('--max-gyro-error', type=ranged(1e-9, 1.0), default=S.max_gyro_error,
                    metavar='FRACTION',
                    help='store the gyroscope scale/misalignment only when its predicted '
                         'accuracy (RMS relative rate error over all directions) is at most '
                         'this (default %(default)s = 1 %%); otherwise only that part is '
                         'left out')
-    g.add_argument('--max-mag-error', type=ranged(1e-9, 1e3), default=DEFAULTS.max_mag_error,
+    g.add_argument('--max-mag-error', type=ranged(1e-9, 1e3), default=S.max_mag_error,
                    metavar='UT',
                    help='store the magnetometer calibration only when its predicted accuracy '
                         '(RMS field error over all directions) is at most this, µT (default '
@@ -287,13 +287,13 @@ def settings(args):
     """Return the session settings of the ``fit`` options."""
     from .common import unit_options
     from ..dataio.units import input_units
-    from ..session.settings import DEFAULTS, FIT
+    from ..session.settings import DEFAULT_SETTINGS as S, FIT
     units = unit_options(args)
-    return DEFAULTS.replace(
+    return S.replace(
         method=args.method, gravity=args.gravity, thermal='on' if args.thermal else 'off',
         band_width_c=args.band_width, max_predicted_error=args.max_predicted_error,
-        max_residual_ratio=getattr(args, 'max_residual_ratio', DEFAULTS.max_residual_ratio),
-        max_weight_s=getattr(args, 'max_weight_s', DEFAULTS.max_weight_s),
+        max_residual_ratio=getattr(args, 'max_residual_ratio', S.max_residual_ratio),
+        max_weight_s=getattr(args, 'max_weight_s', S.max_weight_s),
         allow_unconverged=args.force, max_gyro_error=args.max_gyro_error,
         max_mag_error=args.max_mag_error, field_uT=args.field,
         sensor_id=getattr(args, 'sensor', None),

@@ -32,7 +32,7 @@ from .guide_session import GuideSession
 from .guide_sources import RosSource, SerialSource, SimulatedSource
 from ..core.advice import DEFAULT_TARGET, MIN_WINDOWS, pose_name
 from ..core.errors import InputError
-from ..session.settings import DEFAULTS, GUIDED_METHODS
+from ..session.settings import DEFAULT_SETTINGS, GUIDED_METHODS
 
 
 def add_arguments(p):
@@ -46,12 +46,12 @@ def add_arguments(p):
     p.add_argument('-o', '--output', help='calibration YAML to write (default: the file of '
                                           'the nodes, $ROS_HOME/accel_calib_ros/'
                                           'calibration.yaml)')
-    p.add_argument('--method', choices=GUIDED_METHODS, default=DEFAULTS.method)
+    p.add_argument('--method', choices=GUIDED_METHODS, default=DEFAULT_SETTINGS.method)
     p.add_argument('--target', type=positive, default=DEFAULT_TARGET,
                    help='predicted accuracy that is enough, m/s² (default %(default)s)')
-    p.add_argument('--gravity', type=GRAVITY, default=DEFAULTS.gravity)
+    p.add_argument('--gravity', type=GRAVITY, default=DEFAULT_SETTINGS.gravity)
     p.add_argument('--max-predicted-error', type=ranged(1e-9, 1e3),
-                   default=DEFAULTS.max_predicted_error, metavar='M_S2',
+                   default=DEFAULT_SETTINGS.max_predicted_error, metavar='M_S2',
                    help='refuse to write a calibration whose predicted accuracy is worse '
                         'than this, m/s² (default %(default)s, as fit and the node)')
     p.add_argument('--hold', type=positive, default=2.0,
@@ -385,7 +385,7 @@ def _rate(stamp_lists):
 
 
 def _finish(session, output, label, console, history=None, sensor=None,
-            max_predicted_error=DEFAULTS.max_predicted_error):
+            max_predicted_error=DEFAULT_SETTINGS.max_predicted_error):
     """
     End the session as every front door does: fit, judge, write the calibration, history.
 
@@ -394,9 +394,9 @@ def _finish(session, output, label, console, history=None, sensor=None,
     """
     from ..session.finish import HistoryTarget
     from ..session.settings import GUIDE, SI_UNITS
-    settings = DEFAULTS.replace(max_predicted_error=max_predicted_error,
-                                source=f'accel-calib guide ({label})', sensor_id=sensor,
-                                input_units=SI_UNITS, words=GUIDE)
+    settings = DEFAULT_SETTINGS.replace(
+        max_predicted_error=max_predicted_error, source=f'accel-calib guide ({label})',
+        sensor_id=sensor, input_units=SI_UNITS, words=GUIDE)
     outcome = session.finish(settings, output,
                              HistoryTarget(history, sensor) if history else None)
     if not outcome.accepted:

@@ -18,7 +18,7 @@ import numpy as np
 from ..core.advice import advise, coverage, DEFAULT_TARGET
 from ..core.collector import ImuCollector
 from ..core.constants import G0
-from ..session.settings import DEFAULTS
+from ..session.settings import DEFAULT_SETTINGS
 from ..session.windows import Window, WindowSet
 
 
@@ -139,8 +139,8 @@ class GuideSession:
     :param target: predicted accuracy that is enough, m/s².
     """
 
-    def __init__(self, rate_hz, method=DEFAULTS.method, target=DEFAULT_TARGET, gravity=G0,
-                 hold_s=2.0, max_weight_s=DEFAULTS.max_weight_s):
+    def __init__(self, rate_hz, method=DEFAULT_SETTINGS.method, target=DEFAULT_TARGET, gravity=G0,
+                 hold_s=2.0, max_weight_s=DEFAULT_SETTINGS.max_weight_s):
         self.method = method
         self.target = target
         self.gravity = gravity

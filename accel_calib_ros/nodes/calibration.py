@@ -29,7 +29,7 @@ from std_srvs.srv import Trigger
 
 from .calibration_intake import Intake, subscribe
 from .calibration_job import Job, run_job, worker
-from .calibration_params import check_rate, METHODS, PARAMS, sensor_param  # noqa: F401
+from .calibration_params import check_rate, PARAMS, sensor_param  # noqa: F401
 from .common import (calibration_path, declare_parameters, expand_path, hardware_id,
                      make_directory, ParameterProblem, run, unsafe_output)
 from ..core.advice import advise, coverage

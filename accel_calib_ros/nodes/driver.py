@@ -21,6 +21,7 @@ from sensor_msgs.msg import Imu, MagneticField, Temperature
 from .common import (declare_parameters, hardware_id, Param, ParameterProblem, run,
                      Throttled)
 from ..dataio.link import assess, link_values, SerialLink, SystemClock
+from ..dataio.link.serial_link import LOG_PERIOD_S
 from ..dataio.wire import (ACCEL_LSB_PER_G, BY_KEY, chip_of, Converter, DEFAULT_CHIP,
                            FRAME_V1_SIZE, FRAME_V2_SIZE, GYRO_LSB_PER_DPS, MAG_AK8963,
                            MagConverter, temp_counts_range, TEMP_FORMULAS)
@@ -30,8 +31,6 @@ QUEUE_DEPTH = 100
 FORMATS = ('binary', 'ascii')
 TIMESTAMPS = ('device', 'host')
 CHIP_CHOICES = ('auto',) + tuple(BY_KEY)
-LOG_PERIOD_S = 10.0
-"""At most one log line per this many seconds about a firmware recovery."""
 BITS_PER_BYTE = 10
 MAG_ASA_WAIT_S = 10.0
 """Magnetometer samples wait this long after opening the port for the info frame's ASA."""

@@ -3,7 +3,7 @@ What a front door asks of a session (:class:`Settings`) and how it spells it (:c
 
 Every default a door offers (the acceptance limits, the weight cap of a window, the
 methods) is a field default of :class:`Settings`: the node's parameters, the options of
-``accel-calib fit`` and of ``guide`` read them from :data:`DEFAULTS`, so the three doors
+``accel-calib fit`` and of ``guide`` read them from :data:`DEFAULT_SETTINGS`, so the three doors
 cannot drift apart. The limits themselves are the science's (``core``); this is where a
 door finds them.
 
@@ -166,5 +166,5 @@ class Settings(NamedTuple):
         return self._replace(**changes)
 
 
-DEFAULTS = Settings()
+DEFAULT_SETTINGS = Settings()
 """The defaults every door offers (an option's default, a parameter's)."""

@@ -43,7 +43,7 @@ CHUNK_S = 10.0
 """Seconds of samples simulated at a time once the script has ended."""
 INFO_PERIOD_S = 1.0
 """The info frame is sent at each plug-in and then once a second, as the firmware does."""
-EFFECTS = ('scale_nonlinearity', 'temperature_bias', 'temperature_scale', 'bias_drift')
+SIMULATED_EFFECTS = ('scale_nonlinearity', 'temperature_bias', 'temperature_scale', 'bias_drift')
 
 
 class DeviceError(Exception):
@@ -129,7 +129,8 @@ def add_arguments(parser):
     parser.add_argument('--temp-ramp', type=float, nargs=2, metavar=('START', 'END'),
                         help='temperature ramp over the script, °C')
     parser.add_argument('--effects', default='',
-                        help='comma-separated extra sensor effects: ' + ', '.join(EFFECTS))
+                        help='comma-separated extra sensor effects: '
+                             + ', '.join(SIMULATED_EFFECTS))
     parser.add_argument('--chip', choices=tuple(BY_KEY), default=DEFAULT_CHIP.key,
                         help='the chip it is (its WHO_AM_I in the info frame, its temperature '
                              'formula; default %(default)s)')
@@ -234,8 +235,8 @@ class VirtualSensor:
         self.rng = np.random.default_rng(args.seed)
         effects = [e for e in args.effects.split(',') if e]
         for name in effects:
-            if name not in EFFECTS:
-                raise DeviceError(f'unknown effect {name!r}: use {", ".join(EFFECTS)}')
+            if name not in SIMULATED_EFFECTS:
+                raise DeviceError(f'unknown effect {name!r}: use {", ".join(SIMULATED_EFFECTS)}')
         self.sensor = mpu9250_like(self.rng, rate_hz=args.rate, effects=effects)
         if getattr(args, 'noise_from', None):
             from ..core.errors import InputError

@@ -185,7 +185,7 @@ def test_the_guide_windows_carry_the_rate_and_the_fit_its_bias():
     for k in range(0, len(s.t), 50):
         guide.update(s.t[k:k + 50], s.accel[k:k + 50], s.temp[k:k + 50], s.gyro[k:k + 50])
     assert len(guide.windows) == 12 and all(w.gyro_mean is not None for w in guide.windows)
-    from accel_calib_ros.session.settings import DEFAULTS, GUIDE
-    outcome = guide.finish(DEFAULTS.replace(words=GUIDE))
+    from accel_calib_ros.session.settings import DEFAULT_SETTINGS, GUIDE
+    outcome = guide.finish(DEFAULT_SETTINGS.replace(words=GUIDE))
     assert outcome.accepted, outcome.refusal
     np.testing.assert_allclose(outcome.calibration.gyro_bias, sensor.gyro_bias, atol=2e-3)

@@ -421,9 +421,9 @@ def test_guide_session_says_the_turns_and_the_sphere_and_stores_both_parts():
     assert status['gyroscope']['status'] == 'ok' and status['gyroscope']['missing_axes'] == []
     assert status['magnetometer']['coverage'] >= 0.25 and 'of the sphere' in \
         status['magnetometer']['advice']
-    from accel_calib_ros.session.settings import DEFAULTS, GUIDE
-    outcome = session.finish(DEFAULTS.replace(max_gyro_error=0.01, max_mag_error=1.0,
-                                              words=GUIDE))
+    from accel_calib_ros.session.settings import DEFAULT_SETTINGS, GUIDE
+    outcome = session.finish(DEFAULT_SETTINGS.replace(max_gyro_error=0.01,
+                                                      max_mag_error=1.0, words=GUIDE))
     cal, gyro, mag = outcome.calibration, outcome.gyro, outcome.magnetometer
     assert gyro.calibrated and mag.calibrated, (gyro.reason, mag.reason)
     left = np.linalg.solve(cal.gyro_T, source.sensor.gyro_T) - np.eye(3)

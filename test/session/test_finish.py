@@ -21,7 +21,7 @@ from accel_calib_ros.dataio.history import History
 from accel_calib_ros.dataio.recording import load_samples, write_samples_csv
 from accel_calib_ros.session.accept import CollectedImu, fit_and_accept, refused
 from accel_calib_ros.session.finish import finish_session, HistoryTarget
-from accel_calib_ros.session.settings import DEFAULTS, FIT, GUIDE, NODE, Words
+from accel_calib_ros.session.settings import DEFAULT_SETTINGS as S, FIT, GUIDE, NODE, Words
 from accel_calib_ros.session.windows import WindowSet
 from accel_calib_ros.sim.motion import random_directions, simulate_session
 from accel_calib_ros.sim.sensor import mpu9250_like, with_gyro_errors
@@ -176,19 +176,19 @@ def test_the_defaults_of_every_door_are_the_settings():
     fit = build_parser('fit').parse_args(['fit', 'x.csv'])
     guide = build_parser('guide').parse_args(['guide', '--simulate'])
     for args in (fit, guide):
-        assert args.max_predicted_error == DEFAULTS.max_predicted_error
-        assert args.method == DEFAULTS.method and args.gravity == DEFAULTS.gravity
+        assert args.max_predicted_error == S.max_predicted_error
+        assert args.method == S.method and args.gravity == S.gravity
     assert (fit.max_residual_ratio, fit.max_weight_s, fit.band_width) == \
-        (DEFAULTS.max_residual_ratio, DEFAULTS.max_weight_s, DEFAULTS.band_width_c)
+        (S.max_residual_ratio, S.max_weight_s, S.band_width_c)
     assert (fit.max_gyro_error, fit.max_mag_error) == \
-        (DEFAULTS.max_gyro_error, DEFAULTS.max_mag_error)
+        (S.max_gyro_error, S.max_mag_error)
 
 
 def test_a_failed_save_is_a_refusal_and_the_old_file_stays(recording, tmp_path):
     _, samples, windows = recording
     blocked = tmp_path / 'file'
     blocked.write_text('not a folder\n')
-    outcome = finish_session(windows, DEFAULTS.replace(words=NODE), rate_hz=samples.rate_hz,
+    outcome = finish_session(windows, S.replace(words=NODE), rate_hz=samples.rate_hz,
                              output=blocked / 'calibration.yaml',
                              history=HistoryTarget(tmp_path / 'h.sqlite', SENSOR))
     assert not outcome.accepted and outcome.refusal.startswith(f'cannot write {blocked}')
@@ -201,7 +201,7 @@ def test_a_failed_save_is_a_refusal_and_the_old_file_stays(recording, tmp_path):
 def test_a_failed_history_is_a_note_not_a_lost_calibration(recording, tmp_path):
     _, samples, windows = recording
     (tmp_path / 'h.sqlite').write_bytes(b'this is not a database' * 100)
-    outcome = finish_session(windows, DEFAULTS, rate_hz=samples.rate_hz,
+    outcome = finish_session(windows, S, rate_hz=samples.rate_hz,
                              output=tmp_path / 'c.yaml',
                              history=HistoryTarget(tmp_path / 'h.sqlite', SENSOR))
     assert outcome.accepted and outcome.saved_to and outcome.history is None
@@ -212,11 +212,11 @@ def test_a_failed_history_is_a_note_not_a_lost_calibration(recording, tmp_path):
 
 def test_an_input_that_cannot_be_fitted_is_a_refusal_of_the_input(recording):
     _, samples, windows = recording
-    outcome = finish_session(windows, DEFAULTS.replace(method='nonsense'),
+    outcome = finish_session(windows, S.replace(method='nonsense'),
                              rate_hz=samples.rate_hz)
     assert outcome.cause == 'input' and not outcome.accepted and 'nonsense' in outcome.refusal
     with pytest.raises(Exception):
-        fit_and_accept(windows.observations(), DEFAULTS.replace(method='nonsense'))
+        fit_and_accept(windows.observations(), S.replace(method='nonsense'))
 
 
 def test_one_refused_outcome_for_every_door():
