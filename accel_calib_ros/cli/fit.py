@@ -2,9 +2,9 @@
 ``accel-calib fit``: a calibration from a recording's static windows (or its samples).
 
 The recording's windows are found here (``core.windows``, outliers dropped; with
-``--history`` joined to the sensor's kept windows); the fit, its acceptance and the
-file are the session floor's, as for the node and ``guide``
-(``session.accept.fit_and_accept``, ``session.persist``).
+``--history`` joined to the sensor's kept windows); everything after them (the fit, its
+acceptance, the file, the history) is the session floor's ``finish_session``, as for the
+node and ``guide``; a file that cannot be written is an error of the arguments (exit 2).
 """
 
 import os

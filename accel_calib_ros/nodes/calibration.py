@@ -5,10 +5,10 @@ The live front door of the session floor; docs/calibration_node.md describes it 
 The samples come in on a node and thread of their own (:mod:`.calibration_intake`); every
 0.1 s they go to the streaming static-window detector and to the IMU collector, and each
 window brings the advice (``~/advice``, ``~/status``, ``/diagnostics``). ``~/calibrate``
-fits, judges and saves with the session floor (``session.accept.fit_and_accept``,
-``session.persist``) in a worker thread (:mod:`.calibration_job`) and answers when it is
-done, while the samples, ``/diagnostics`` and the parameter services go on; a second
-call meanwhile is refused with the reason. The model-gap check follows in the worker and
+fits, judges, saves and records with the session floor (``session.finish``) in a worker
+thread (:mod:`.calibration_job`) and answers when it is done, while the samples,
+``/diagnostics`` and the parameter services go on; a second call meanwhile is refused
+with the reason. The model-gap check follows in the worker and
 lands on ``~/status``.
 """
 

@@ -8,7 +8,7 @@ time (:meth:`Window.from_detector` reads their dicts); ``accel-calib fit`` detec
 all at once (:meth:`WindowSet.from_static`). A :class:`WindowSet` holds them as arrays:
 the weights (samples, capped at a few seconds), the pooled noise, the gyro bias they
 show, and :class:`Observations`, what :func:`~accel_calib_ros.session.accept.fit_and_accept`
-fits. numpy only.
+fits. numpy only; plain records (a NamedTuple, ``__slots__`` classes) for start-up.
 """
 
 import math
