@@ -52,7 +52,7 @@ class HistoryTarget(NamedTuple):
 
 
 def finish_session(windows, settings, imu=None, obs=None, rate_hz=None, output=None,
-                   history=None):
+                   history=None, may_save=None):
     """
     Fit, accept, save and record one session.
 
@@ -67,6 +67,8 @@ def finish_session(windows, settings, imu=None, obs=None, rate_hz=None, output=N
     :param rate_hz: the sample rate, Hz, for the weight cap of windows without their own.
     :param output: the calibration file to write (None: nothing written).
     :param history: a :class:`HistoryTarget` (None: not recorded).
+    :param may_save: callable asked right before the save (a node shutting down): False
+        refuses the outcome with the door's ``Words.stopping`` and nothing is written.
     :return: :class:`~.accept.Outcome`; ``saved_to``, ``carried``, ``history`` and
         ``notes`` say what was written.
     """
@@ -80,6 +82,8 @@ def finish_session(windows, settings, imu=None, obs=None, rate_hz=None, output=N
                        limit=settings.max_predicted_error, cause='input')
     if not outcome.accepted:
         return outcome
+    if may_save is not None and not may_save():
+        return refused(words.stopping, outcome=outcome)
     if output is not None:
         from .persist import save
         try:

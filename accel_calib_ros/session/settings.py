@@ -58,6 +58,7 @@ class Words(NamedTuple):
     :param mag_not_kept: the door keeps no magnetometer samples.
     :param ring_short: added to an insufficient gyroscope when only the last ``{seconds}``
         of raw samples were kept.
+    :param stopping: the refusal of a session the door stopped right before its save.
     """
 
     limit: str = '--max-predicted-error'
@@ -79,6 +80,7 @@ class Words(NamedTuple):
     gyro_not_kept: str = 'no raw samples were kept'
     mag_not_kept: str = 'no magnetometer samples were kept'
     ring_short: str = ' (only the last {seconds:.0f} s of raw samples were kept)'
+    stopping: str = 'stopped before the save: nothing was written'
 
 
 FIT = Words()
@@ -109,7 +111,9 @@ NODE = Words(limit='max_predicted_error', residual_limit='max_residual_ratio',
              gyro_not_kept='the node keeps no raw samples (max_gyro_samples is 0)',
              mag_not_kept='the node keeps no magnetometer samples (max_mag_samples is 0)',
              ring_short=' (only the last {seconds:.0f} s of raw samples are kept: '
-                        'max_gyro_samples)')
+                        'max_gyro_samples)',
+             stopping='the node is shutting down: nothing was saved (the collected windows '
+                      'end with the node)')
 """The words of the calibration node (parameters, topics)."""
 
 

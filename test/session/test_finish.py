@@ -225,3 +225,12 @@ def test_one_refused_outcome_for_every_door():
         assert (out.refusal, out.observations, out.accepted) == ('no', 3, False)
         assert out.gyro.reason == words.no_gyro and out.magnetometer.reason == words.no_mag
     assert isinstance(GUIDE, Words)
+
+
+def test_a_door_may_stop_the_session_right_before_its_save(recording, tmp_path):
+    _, samples, windows = recording
+    asked = []
+    outcome = finish_session(windows, S.replace(words=NODE), rate_hz=samples.rate_hz,
+                             output=tmp_path / 'c.yaml', may_save=lambda: asked.append(1))
+    assert asked == [1] and outcome.refusal == NODE.stopping and outcome.cause is None
+    assert not (tmp_path / 'c.yaml').exists()
