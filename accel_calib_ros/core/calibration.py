@@ -115,7 +115,7 @@ def magnetometer_problems(T, hard_iron_uT, R, field_uT, dip_deg):
     return problems
 
 
-@dataclass
+@dataclass(eq=False)          # arrays: equal only to itself
 class MagnetometerPart:
     """
     A fitted magnetometer calibration (interface.md §10): ``raw = T @ R @ field + hard_iron``.
@@ -167,7 +167,7 @@ def _optional_vector(value, size):
     return np.asarray(value, dtype=float).reshape(size).copy()
 
 
-@dataclass
+@dataclass(eq=False)          # arrays: equal only to itself
 class Calibration:
     """
     A fitted accelerometer calibration (see module docstring for the model).

@@ -106,7 +106,7 @@ def window_variance(weights, noise_std, count, floor=None):
     return np.maximum(sigma ** 2 / np.maximum(w, 1e-300) + floor ** 2, 1e-18)
 
 
-@dataclass
+@dataclass(eq=False)          # arrays: equal only to itself
 class Information:
     """
     The information static windows hold about a calibration (see the module docstring).
@@ -219,7 +219,7 @@ def information(readings, T, bias, gravity=G0, method='ml', weights=None,
     return info
 
 
-@dataclass
+@dataclass(eq=False)          # arrays: equal only to itself
 class CrossAxis:
     """
     What the cross-axis terms that ``gn`` holds at zero cost (see the module docstring).

@@ -20,7 +20,7 @@ def _bad_rows(values, limit):
     return ~(ok if ok.ndim == 1 else ok.all(axis=1))
 
 
-@dataclass
+@dataclass(eq=False)          # arrays: equal only to itself
 class Samples:
     """
     A recording of accelerometer samples, SI units (REP-103).

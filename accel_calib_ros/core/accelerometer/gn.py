@@ -17,7 +17,7 @@ from .ml import PRECISION_FACTOR, STEP_TOLERANCE
 from ..errors import CalibrationError
 
 
-@dataclass
+@dataclass(eq=False)          # arrays: equal only to itself
 class GNResult:
     """
     Outcome of :func:`fit_gn`.

@@ -66,7 +66,7 @@ def _normalise(v):
     return v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
-@dataclass
+@dataclass(eq=False)          # arrays: equal only to itself
 class MLResult:
     """
     Outcome of :func:`fit_ml`, in the units of the readings.

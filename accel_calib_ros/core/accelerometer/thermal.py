@@ -32,7 +32,7 @@ MIN_WINDOWS_PER_BAND = 12
 """Fewest static windows a band needs for its nine coefficients."""
 
 
-@dataclass
+@dataclass(eq=False)          # arrays: equal only to itself
 class ThermalBand:
     """
     Drift coefficients of one temperature band.
@@ -83,7 +83,7 @@ class ThermalBand:
                    None if gyro is None else np.asarray(gyro, float).reshape(3))
 
 
-@dataclass
+@dataclass(eq=False)          # arrays: equal only to itself
 class ThermalTable:
     """Band drift tables and their continuous lookup."""
 

@@ -29,7 +29,7 @@ DEFAULTS = {'window_s': 0.25, 'min_duration_s': 0.3, 'threshold_factor': 3.0, 't
             'floor_quantile': 0.02, 'max_rotation_rad_s': float(np.radians(2.0))}
 
 
-@dataclass
+@dataclass(eq=False)          # arrays: equal only to itself
 class StaticWindows:
     """
     Static windows of a recording, one row per window.
