@@ -273,7 +273,7 @@ def check_not_empty(args):
             raise UsageError(f'accel-calib: {option} is an empty name; give a file name')
 
 
-# -- the output border (issue 16) ----------------------------------------------------------
+# -- the output border ----------------------------------------------------------------------
 
 MAX_REFUSAL = 500
 """Longest refusal line (``cannot calibrate: ...``): its own words, the poses to add."""

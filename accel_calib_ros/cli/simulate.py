@@ -40,7 +40,7 @@ def add_arguments(p):
     p.add_argument('--noise-from', metavar='ALLAN.json',
                    help='per-sample accel (and gyro) noise from "accel-calib allan --json" '
                         '(white_sample_std, kept at its noise density at --rate)')
-    g = p.add_argument_group('gyroscope and magnetometer (issue 19; off by default)')
+    g = p.add_argument_group('gyroscope and magnetometer (off by default)')
     g.add_argument('--gyro-errors', action='store_true',
                    help='gyroscope scale ±3 %% and cross-axis ±2 %% errors (MPU-9250 '
                         'datasheet); the rates still integrate to the simulated turns')

@@ -1,5 +1,5 @@
 """
-The whole IMU beside the accelerometer (issue 19): file, fit, apply, recordings, advise.
+The whole IMU beside the accelerometer: file, fit, apply, recordings, advise.
 
 Simulated sessions with gyroscope scale/misalignment errors and an AK8963-like
 magnetometer go through the command line; what comes out is compared with the truth the

@@ -256,3 +256,47 @@ def test_the_guide_reads_the_port_through_the_link():
               and any(a.name == 'serial' or a.name.startswith('serial.') for a in n.names)
               or isinstance(n, ast.ImportFrom) and (n.module or '').split('.')[0] == 'serial']
     assert direct == [], 'the guide opens pyserial itself'
+
+
+# -- a front page, a map, no history in the code ---------------------------------------------
+
+REPO = os.path.join(ROOT, '..')
+MAX_README_LINES = 250
+
+
+def test_the_readme_is_a_front_page_that_links_the_map():
+    """README.md: what it is, the two commands, on a robot, where to read next."""
+    with open(os.path.join(REPO, 'README.md'), encoding='utf-8') as f:
+        text = f.read()
+    assert text.count('\n') <= MAX_README_LINES
+    assert '](docs/architecture.md)' in text
+    assert 'make demo' in text and 'make test' in text
+    assert os.path.isfile(os.path.join(REPO, 'docs', 'architecture.md'))
+
+
+def test_no_issue_numbers_in_the_package_docs_or_test_names():
+    """History belongs to the tracker and the log, not to the code, the docs or a test's name."""
+    import re
+    pattern = re.compile(r'\bissues?\s*#?\s*\d+', re.IGNORECASE)
+    found = []
+    places = [os.path.join(REPO, p) for p in ('accel_calib_ros', 'docs', 'launch', 'config')]
+    files = [os.path.join(REPO, 'README.md')]
+    for place in places:
+        for folder, _, names in os.walk(place):
+            files += [os.path.join(folder, n) for n in names
+                      if n.endswith(('.py', '.md', '.yaml', '.txt'))]
+    for path in files:
+        with open(path, encoding='utf-8') as f:
+            for number, line in enumerate(f, 1):
+                if pattern.search(line):
+                    found.append(f'{os.path.relpath(path, REPO)}:{number}')
+    tests = os.path.join(REPO, 'test')
+    for folder, _, names in os.walk(tests):
+        for name in names:
+            if name.endswith('.py'):
+                with open(os.path.join(folder, name), encoding='utf-8') as f:
+                    found += [f'{name}: {n}' for n in re.findall(r'def (test\w*)', f.read())
+                              if re.search(r'issue_?\d', n)]
+            if re.search(r'issue_?\d', name):
+                found.append(name)
+    assert found == []
