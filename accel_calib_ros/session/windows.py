@@ -223,19 +223,3 @@ class WindowSet:
                          self.t_start[index], self.t_stop[index], self.temp[index],
                          None if self.gyro_mean is None else self.gyro_mean[index],
                          self.rate_hz[index])
-
-    def ranges_in(self, t):
-        """
-        Map the windows to sample ranges of times ``t`` (the gyroscope and magnetometer fits).
-
-        :returns: an object with ``start`` and ``stop`` (int arrays) for the windows that
-            lie inside ``t`` (with at least one sample).
-        """
-        from types import SimpleNamespace
-        t = np.asarray(t, float)
-        if not len(t) or not len(self):
-            return SimpleNamespace(start=np.zeros(0, int), stop=np.zeros(0, int))
-        start = np.searchsorted(t, self.t_start, side='left')
-        stop = np.searchsorted(t, self.t_stop, side='right')
-        keep = (stop > start) & (self.t_start >= t[0]) & (self.t_stop <= t[-1])
-        return SimpleNamespace(start=start[keep], stop=stop[keep])
