@@ -72,7 +72,7 @@ class Binding:
         projected = self.cols - design.q @ (design.q.T @ self.cols)
         self.u = orthonormal(projected)
         self.pinv = np.linalg.pinv(projected)
-        nested = [n for n in getattr(effect, 'nests', ()) if n in design.final.names]
+        nested = [n for n in effect.nests if n in design.final.names]
         self.k = (len(effect.param_names) + effect.searched
                   - sum(design.final.k(n) for n in nested))
         self.coef_var = np.sum(self.pinv ** 2, axis=1)
