@@ -4,7 +4,7 @@ What an effect of the model-gap library is: the one class every effect derives f
 An effect is a term ``raw += columns(a, temp, time) @ params`` of the sensor model. All
 the workflow and the simulator ask of an effect is a method or an attribute of
 :class:`Effect`, with a default that suits most effects; a subclass overrides only what
-its physics changes. No other module knows an effect by its name.
+its physics changes. No other module keeps a rule keyed by an effect's name.
 
 - **fit**: ``columns``, ``applicable``, ``magnitude``; ``bind``/``bindings``/``search``,
   ``searched`` and ``continuous_search`` for a parameter found by a search (a time

@@ -201,7 +201,7 @@ def separation_advice(a, b, c):
     What either effect says separates it from the other (``Effect.separation_advice``, by
     their families), else more poses over the sphere.
 
-    :param a: :param b: library names or Effects. :param c: the session's Conditions.
+    :param a: library name or Effect; ``b`` likewise. :param c: the session's Conditions.
     """
     first, second = effect_of(a), effect_of(b)
     return (first.separation_advice(second, c) or second.separation_advice(first, c)
