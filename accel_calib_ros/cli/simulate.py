@@ -28,10 +28,9 @@ def add_arguments(p):
     p.add_argument('--temp', type=TEMPERATURE, nargs='+', default=[25.0], metavar='C',
                    help='temperature, °C: one value, or START END for a ramp')
     p.add_argument('--effects', default='',
-                   help='comma-separated extra effects: scale_nonlinearity, '
-                        'temperature_bias, temperature_scale, bias_drift, temperature_lag '
-                        '(the offset follows a die temperature 1-5 min behind the recorded '
-                        'one), bias_random_walk')
+                   help='comma-separated extra effects: ' + ', '.join(
+                       name + (f' ({effect.sim_note})' if effect.sim_note else '')
+                       for name, effect in _switchable().items()))
     p.add_argument('--orthogonal', action='store_true',
                    help='no non-orthogonality (diagonal T, the GN model)')
     p.add_argument('--gravity', type=GRAVITY, default=G0, help='gravity, m/s²')
@@ -58,6 +57,19 @@ def add_arguments(p):
                    help='RMS angle a trembling hand turns the sensor while it holds a pose, '
                         'degrees (default 0: perfectly still)')
     p.add_argument('--json', action='store_true', help='print one JSON object')
+
+
+def _switchable():
+    """Return the library effects a simulated sensor gets by name: {name: Effect}."""
+    from ..modelgap.effects import EFFECTS
+    return {name: effect for name, effect in EFFECTS.items()
+            if effect.sensor_range is not None}
+
+
+def _known():
+    """Return the library effects ``--effects`` takes (also those always on, such as T's)."""
+    from ..modelgap.effects import EFFECTS
+    return [name for name, effect in EFFECTS.items() if effect.datasheet is not None]
 
 
 def _imu_sensor(sensor, args):
@@ -120,8 +132,7 @@ def run(args, out):
         check_suffix(args.output, ('.csv', '.mcap', '.db3'), 'simulate -o')
     rng = np.random.default_rng(args.seed)
     effects = [e.strip() for e in args.effects.split(',') if e.strip()]
-    known = ('scale_nonlinearity', 'temperature_bias', 'temperature_scale', 'bias_drift',
-             'nonorthogonality', 'temperature_lag', 'bias_random_walk')
+    known = _known()
     for e in effects:
         if e not in known:
             raise UsageError(f'unknown effect {e!r}; choose from {", ".join(known)}')
@@ -209,4 +220,9 @@ def sensor_to_dict(sensor, gravity):
             'gyro_noise_std_rad_s': np.asarray(sensor.gyro_noise_std, float).tolist(),
             **({'thermal_lag_s': float(sensor.thermal_lag_s)} if sensor.thermal_lag_s else {}),
             **({'bias_random_walk_m_s2_per_rt_s': sensor.bias_random_walk.tolist()}
-               if np.any(sensor.bias_random_walk) else {})}
+               if np.any(sensor.bias_random_walk) else {}),
+            **({'library_effects': {effect.name: {'params': np.asarray(params, float).tolist(),
+                                                  'param_names': list(effect.param_names),
+                                                  'unit': effect.unit}
+                                    for effect, params in sensor.library_effects}}
+               if sensor.library_effects else {})}

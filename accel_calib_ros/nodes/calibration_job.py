@@ -75,8 +75,8 @@ def warm_up():
     import importlib
     for name in ('scipy.optimize', 'scipy.linalg', 'scipy.stats', 'scipy.spatial.transform',
                  '..core.accelerometer.fit', '..core.information', '..core.gyroscope.fit',
-                 '..core.magnetometer.fit', '..core.outcomes', '..modelgap', '..session.gap',
-                 '..session.finish', '..session.persist', '..dataio.history'):
+                 '..core.magnetometer.fit', '..core.outcomes', '..modelgap.workflow',
+                 '..session.gap', '..session.finish', '..session.persist', '..dataio.history'):
         try:
             importlib.import_module(name, __package__)
         except ImportError:         # an optional part missing: its first use says so

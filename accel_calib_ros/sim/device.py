@@ -43,7 +43,19 @@ CHUNK_S = 10.0
 """Seconds of samples simulated at a time once the script has ended."""
 INFO_PERIOD_S = 1.0
 """The info frame is sent at each plug-in and then once a second, as the firmware does."""
-SIMULATED_EFFECTS = ('scale_nonlinearity', 'temperature_bias', 'temperature_scale', 'bias_drift')
+
+
+def device_effects():
+    """
+    Return the library effects the virtual device can switch on, in library order.
+
+    Those a random sensor can be given (``Effect.sensor_range``) whose simulation needs no
+    history of the session (``Effect.on_device``): the pose held after the script is
+    measured sample block by sample block.
+    """
+    from ..modelgap.effects import EFFECTS
+    return tuple(name for name, effect in EFFECTS.items()
+                 if effect.sensor_range is not None and effect.on_device)
 
 
 class DeviceError(Exception):
@@ -130,7 +142,7 @@ def add_arguments(parser):
                         help='temperature ramp over the script, °C')
     parser.add_argument('--effects', default='',
                         help='comma-separated extra sensor effects: '
-                             + ', '.join(SIMULATED_EFFECTS))
+                             + ', '.join(device_effects()))
     parser.add_argument('--chip', choices=tuple(BY_KEY), default=DEFAULT_CHIP.key,
                         help='the chip it is (its WHO_AM_I in the info frame, its temperature '
                              'formula; default %(default)s)')
@@ -234,9 +246,10 @@ class VirtualSensor:
         from .sensor import mpu9250_like
         self.rng = np.random.default_rng(args.seed)
         effects = [e for e in args.effects.split(',') if e]
+        known = device_effects()
         for name in effects:
-            if name not in SIMULATED_EFFECTS:
-                raise DeviceError(f'unknown effect {name!r}: use {", ".join(SIMULATED_EFFECTS)}')
+            if name not in known:
+                raise DeviceError(f'unknown effect {name!r}: use {", ".join(known)}')
         self.sensor = mpu9250_like(self.rng, rate_hz=args.rate, effects=effects)
         if getattr(args, 'noise_from', None):
             from ..core.errors import InputError
