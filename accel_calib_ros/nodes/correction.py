@@ -464,6 +464,10 @@ class CorrectionNode(Node):
     # -- diagnostics -----------------------------------------------------------------------
     def publish_diagnostics(self):
         """Publish the calibration state on /diagnostics (REP-107)."""
+        self.diag_pub.publish(self.diagnostics())
+
+    def diagnostics(self):
+        """Return the calibration state (and the field monitor's) as a DiagnosticArray."""
         cal = self.corrector.cal
         now = self.get_clock().now().nanoseconds * 1e-9
         then, count = self._rate_mark
@@ -523,7 +527,7 @@ class CorrectionNode(Node):
             part.hardware_id = status.hardware_id
         array = DiagnosticArray(status=[status] + monitor)
         array.header.stamp = self.get_clock().now().to_msg()
-        self.diag_pub.publish(array)
+        return array
 
 
 def main(args=None):
