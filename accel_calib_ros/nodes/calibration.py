@@ -135,8 +135,8 @@ class CalibrationNode(Node):
         """
         self._stopping = True
         call = self._call
-        if call is not None and call.stop(self._refused(STOPPING, call.imu)):
-            self.get_logger().warning(f'~/calibrate answered: refused: {STOPPING}')
+        if call is not None:
+            call.stop(self._refused(STOPPING, call.imu))
 
     # -- parameters ------------------------------------------------------------------------
     def _detector_settings(self):
