@@ -84,8 +84,9 @@ class ClockMapper:
     stamped more than ``jump_s`` after its own arrival (another board whose clock is
     ahead) starts a new epoch (``resets``; ``last_step_s`` says by how much it stepped):
     the old samples keep the old line, the new ones are mapped afresh. After the port was
-    reopened (:meth:`reopened`) the first sample starts a new epoch also when it would be
-    stamped more than ``jump_s`` before its arrival (a board whose clock is behind). A point
+    reopened (:meth:`reopened`) the first read starts a new epoch also when its newest
+    sample would be stamped more than ``jump_s`` before its arrival (a board whose clock is
+    behind; what the OS buffer kept meanwhile is older, its newest sample is not). A point
     more than ``jump_s`` below the line (the device ahead of host time: the line was made
     from delayed data, such as a burst that waited in the OS buffer) or all points of the
     last ``shift_s`` above it by more than ``shift_min_s`` (the transport got slower, or the
@@ -207,19 +208,19 @@ class ClockMapper:
         :return: one token per sample, (epoch, device seconds), for :meth:`stamp`.
         """
         out = []
+        if self._reopened and len(t_us_list):
+            self._check_reopened(t_us_list[-1], host_s)
         for t_us in t_us_list:
             if self._last_raw is not None:
                 delta = ((t_us - self._last_raw) % WRAP) * 1e-6
-                ahead = self._ahead(self._dev + delta, host_s) \
-                    if delta > self.jump_s or self._reopened else 0.0
+                ahead = self._ahead(self._dev + delta, host_s) if delta > self.jump_s else 0.0
                 if delta > WRAP * 0.5e-6:           # backwards: the device restarted
                     back = delta - WRAP * 1e-6
                     self.reset(self._ahead(self._dev + back, host_s) or back)
-                elif ahead > self.jump_s or (self._reopened and ahead < -self.jump_s):
-                    self.reset(ahead)               # far from its arrival: another clock
+                elif ahead > self.jump_s:           # far ahead of its arrival: another clock
+                    self.reset(ahead)
                 else:
                     self._dev += delta
-            self._reopened = False
             if self._last_raw is None:
                 self._host0 = self._first_host = host_s
                 self._dev = 0.0
@@ -232,6 +233,23 @@ class ClockMapper:
             self._last_host = host_s
             self._point(self._dev, host_s - self._host0 - self._dev)
         return out
+
+    def _check_reopened(self, newest_t_us, host_s):
+        """
+        Restart on the first read after a reopen when its newest sample is far behind.
+
+        The newest sample of a read waited least (what the OS buffer kept while the port
+        was closed is older, and rightly so): if even it would be stamped more than
+        ``jump_s`` before its arrival, the device clock is behind the old one.
+        """
+        self._reopened = False
+        if self._last_raw is None:
+            return
+        delta = ((newest_t_us - self._last_raw) % WRAP) * 1e-6
+        if delta <= WRAP * 0.5e-6:                  # a step back is found sample by sample
+            behind = self._ahead(self._dev + delta, host_s)
+            if behind < -self.jump_s:
+                self.reset(behind)
 
     def _ahead(self, dev, host_s):
         """Return how far after ``host_s`` the line would stamp device time ``dev``, s."""
