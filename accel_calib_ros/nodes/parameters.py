@@ -248,7 +248,7 @@ def declare_parameters(node, specs, check=None, apply=None):
     for spec in specs:
         values[spec.name] = _start_up_value(node, spec)
     log = node.get_logger()
-    rolling_back = []
+    rolling_back = False        # the old values are being set again (post_set failed)
 
     def coerce(parameters):
         """Let an integer stand for a floating-point value (pre-set: before type checks)."""
@@ -269,10 +269,10 @@ def declare_parameters(node, specs, check=None, apply=None):
 
     def on_set(parameters):
         try:
-            if apply is None and any(p.name in values.specs for p in parameters):
-                name = next(p.name for p in parameters if p.name in values.specs)
+            names = [p.name for p in parameters if p.name in values.specs]
+            if names and apply is None:
                 raise ParameterProblem(
-                    f'parameter {name!r} cannot be changed at runtime: restart the node')
+                    f'parameter {names[0]!r} cannot be changed at runtime: restart the node')
             changes = changes_of(parameters)
             if changes and check is not None and not rolling_back:
                 check(changes, {**values, **changes})
@@ -282,6 +282,7 @@ def declare_parameters(node, specs, check=None, apply=None):
         return SetParametersResult(successful=True)
 
     def post_set(parameters):
+        nonlocal rolling_back
         changes = changes_of(parameters)
         if not changes:
             return
@@ -296,11 +297,11 @@ def declare_parameters(node, specs, check=None, apply=None):
                 return
             log.error(f'could not apply {changes}: {type(err).__name__}: {err}; '
                       f'back to {saved}')
-            rolling_back.append(True)
+            rolling_back = True
             try:
                 node.set_parameters([Parameter(k, value=v) for k, v in saved.items()])
             finally:
-                rolling_back.clear()
+                rolling_back = False
             return
         log.info('parameters changed: ' + ', '.join(f'{k}={v!r}' for k, v in changes.items()))
 
