@@ -240,8 +240,8 @@ def test_config_files_match_the_declared_parameters():
                 for key, value in body['ros__parameters'].items():
                     assert node.has_parameter(key), f'{name}.yaml: {key} is not a parameter'
                     assert node.get_parameter(key).value == value
-                declared = set(node._parameters) - {'use_sim_time',
-                                                    'start_type_description_service'}
+                declared = set(node.list_parameters([], 0).names) - {
+                    'use_sim_time', 'start_type_description_service'}
                 assert declared == set(body['ros__parameters']), f'{name}.yaml is incomplete'
             finally:
                 node.destroy_node()
