@@ -29,11 +29,11 @@ from std_srvs.srv import Trigger
 
 from .calibration_intake import Intake, subscribe
 from .calibration_job import Call, Job, run_job, STOPPING, worker
-from .calibration_params import check_rate, METHODS, PARAMS, sensor_param  # noqa: F401
+from .calibration_params import check_rate, PARAMS
 from .calibration_report import Progress
 from .parameters import declare_parameters, ParameterProblem
 from .paths import (calibration_path, check_frame_id, history_path, make_directory, sensor_id,
-                    unsafe_output)
+                    sensor_param, unsafe_output)
 from .spinning import run
 from ..core.collector import ImuCollector
 from ..core.errors import CalibrationError, InputError

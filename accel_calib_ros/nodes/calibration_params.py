@@ -2,14 +2,13 @@
 The parameters of the ``accel_calibration`` node: each described once, typed and ranged.
 
 ``nodes.parameters.declare_parameters`` declares them with their descriptors and checks
-every start-up value and runtime change; the checks that span a value's meaning (a sample
-rate that is an IMU's, a sensor id that is printable) live here too.
+every start-up value and runtime change; the check that spans a value's meaning (a sample
+rate that is an IMU's) lives here too (a sensor id's: ``paths.sensor_param``).
 """
 
 from .parameters import Param, ParameterProblem
 from ..core.collector import DEFAULT_MAX_MAG_SAMPLES, DEFAULT_MAX_SAMPLES
 from ..core.constants import G0
-from ..core.errors import InputError
 from ..core.outcomes import DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR
 from ..core.windows import DEFAULTS
 from ..session.accept import THERMAL_MODES
@@ -100,14 +99,3 @@ def check_rate(rate_hz):
     if rate_hz and rate_hz < MIN_RATE_HZ:
         raise ParameterProblem(f"parameter 'rate_hz' must be 0 or >= {MIN_RATE_HZ:g} Hz, got "
                                f'{rate_hz!r}')
-
-
-def sensor_param(value):
-    """Normalise a sensor id parameter ('' stays '': the frame_id is used)."""
-    if not value:
-        return value
-    from ..dataio.sensor_id import normalise_sensor_id
-    try:
-        return normalise_sensor_id(value)
-    except InputError as err:
-        raise ParameterProblem(f"parameter 'sensor_id': {err}") from None

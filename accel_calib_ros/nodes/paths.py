@@ -36,6 +36,22 @@ def sensor_id(namespace, frame_id):
     return '/'.join(parts)
 
 
+def sensor_param(value):
+    """
+    Normalise a ``sensor_id`` parameter ('' stays '': namespace and frame_id name it).
+
+    :raises ParameterProblem: not printable, too long (``dataio.sensor_id``).
+    """
+    if not value:
+        return value
+    from ..core.errors import InputError
+    from ..dataio.sensor_id import normalise_sensor_id
+    try:
+        return normalise_sensor_id(value)
+    except InputError as err:
+        raise ParameterProblem(f"parameter 'sensor_id': {err}") from None
+
+
 def check_frame_id(value, name='frame_id', empty_ok=False):
     """
     Refuse a frame_id tf2 would not take: a leading ``/``, blanks, unprintable characters.
