@@ -1,5 +1,5 @@
 """
-The whole IMU in the nodes (issue 19), in-process on real rclpy.
+The whole IMU in the nodes, in-process on real rclpy.
 
 The correction node, spun with a peer over DDS, corrects ``angular_velocity`` with the
 gyroscope's T (and maps its covariance) and ``imu/mag`` into ``imu/mag_corrected``; the
