@@ -32,8 +32,8 @@ from .calibration_job import Call, Job, run_job, STOPPING, worker
 from .calibration_params import check_rate, PARAMS
 from .calibration_report import Progress
 from .parameters import declare_parameters, ParameterProblem
-from .paths import (calibration_path, check_frame_id, history_path, make_directory, sensor_id,
-                    sensor_param, unsafe_output)
+from .paths import (check_frame_id, history_path, make_directory, sensor_files, sensor_param,
+                    unsafe_output)
 from .spinning import run
 from ..core.collector import ImuCollector
 from ..core.errors import CalibrationError, InputError
@@ -139,9 +139,7 @@ class CalibrationNode(Progress, Node):
 
     def _files(self, params):
         """Return (sensor id, calibration file, history file) the parameters ``params`` say."""
-        sensor = sensor_param(params['sensor_id']) or sensor_id(self.get_namespace(),
-                                                                params['frame_id'])
-        path = calibration_path(params['calibration_file'], sensor)
+        sensor, path = sensor_files(self.get_namespace(), params)
         return sensor, path, history_path(params['history_file'], path)
 
     def _check_params(self, changes, proposed):

@@ -26,8 +26,7 @@ from std_srvs.srv import Trigger
 from .correction_monitor import NodeMonitor, PARAMS as MONITOR_PARAMS
 from .level_frame import LevelFrame
 from .parameters import declare_parameters, Param, ParameterProblem
-from .paths import (calibration_path, check_frame_id, hardware_id, sensor_id, sensor_param,
-                    status_name)
+from .paths import check_frame_id, hardware_id, sensor_files, status_name
 from .spinning import run
 from ..core.constants import TESLA_PER_UT
 from ..core.correction import (Corrector, UNCALIBRATED_COVARIANCE,  # noqa: F401 - re-exported
@@ -134,9 +133,7 @@ class CorrectionNode(Node):
 
     def _files(self, params):
         """Return (sensor id, calibration file) the parameters ``params`` say."""
-        sensor = sensor_param(params['sensor_id']) or sensor_id(self.get_namespace(),
-                                                                params['frame_id'])
-        return sensor, calibration_path(params['calibration_file'], sensor)
+        return sensor_files(self.get_namespace(), params)
 
     def _check_params(self, changes, proposed):
         """Refuse a start-up value or a change the node cannot work with (no side effects)."""

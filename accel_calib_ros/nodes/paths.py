@@ -130,6 +130,18 @@ def calibration_path(value, sensor, name='calibration_file'):
     return default_calibration_path(sensor)
 
 
+def sensor_files(namespace, params):
+    """
+    Return (sensor id, calibration file) the node's parameters say.
+
+    :param namespace: the node's namespace.
+    :param params: its parameter values (``sensor_id``, ``frame_id``, ``calibration_file``).
+    :raises ParameterProblem: a sensor id or a ``~user`` the node cannot take.
+    """
+    sensor = sensor_param(params['sensor_id']) or sensor_id(namespace, params['frame_id'])
+    return sensor, calibration_path(params['calibration_file'], sensor)
+
+
 def history_path(value, calibration_file):
     """
     Resolve a ``history_file`` parameter: '' means ``history.sqlite`` beside the calibration.
