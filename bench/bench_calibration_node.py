@@ -16,6 +16,7 @@ messages, to the calibration node running as its own process (as ``ros2 run``). 
 - the ``~/calibrate`` response time and its first words.
 
 Usage: python bench/bench_calibration_node.py [--rate 1000] [--poses 14] [--after 12]
+[--executor group|multi]
 Prints figures (the lines start with RESULT), asserts nothing.
 """
 
@@ -205,6 +206,10 @@ def main():
                         help='extra "-p name:=value" parameters of the node, space separated')
     parser.add_argument('--module', default='accel_calib_ros.nodes.calibration',
                         help='node module to run (python -m)')
+    parser.add_argument('--executor', choices=('group', 'multi'), default='group',
+                        help="group: the node's own main() (two single-threaded executors, "
+                             'nodes.spinning); multi: one MultiThreadedExecutor '
+                             '(bench/multithreaded_node.py)')
     args = parser.parse_args()
     os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(120, 200)))
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
@@ -213,8 +218,11 @@ def main():
     session, pose_s = simulate(args.rate, args.poses, args.after)
     with tempfile.TemporaryDirectory() as tmp:
         log_path = os.path.join(tmp, 'node.log')
-        cmd = [sys.executable, '-m', args.module, '--ros-args',
-               '-p', f'calibration_file:={os.path.join(tmp, "calibration.yaml")}']
+        node = [sys.executable, '-m', args.module] if args.executor == 'group' else [
+            sys.executable, os.path.join(os.path.dirname(os.path.abspath(__file__)),
+                                         'multithreaded_node.py'), 'calibration']
+        cmd = node + ['--ros-args', '-p',
+                      f'calibration_file:={os.path.join(tmp, "calibration.yaml")}']
         for extra in args.node_args.split():
             cmd += ['-p', extra]
         with open(log_path, 'w') as log:

@@ -9,9 +9,9 @@ output, depth 100). This process subscribes to both outputs and measures deliver
 (received / published), latency (receive time - stamp) percentiles and the resident
 memory of both consumers (VmRSS at the end of the input), their CPU time while the
 input streams (user + system, /proc), and prints the ratios
-the targets (RSS <= 1.2x the relay, p50 latency <= the relay's, 100 % delivered)::
+the node is held to (RSS <= 1.2x the relay, p50 latency <= the relay's, 100 % delivered)::
 
-    python bench/bench_correction.py [--rate 1000] [--duration 10]
+    python bench/bench_correction.py [--rate 1000] [--duration 10] [--executor group|multi]
 """
 
 import argparse
@@ -143,6 +143,10 @@ def main():
                         help='A/A check of the bench: a second bare relay in place of the '
                              "correction node (its ratios show the bench's own bias)")
     parser.add_argument('--consumers', type=int, default=2, help=argparse.SUPPRESS)
+    parser.add_argument('--executor', choices=('group', 'multi'), default='group',
+                        help="group: the node's own main() (two single-threaded executors, "
+                             'nodes.spinning); multi: one MultiThreadedExecutor '
+                             '(bench/multithreaded_node.py)')
     args = parser.parse_args()
     if args.role == 'relay':
         return run_relay()
@@ -164,8 +168,12 @@ def main():
     py = sys.executable
     procs = [
         subprocess.Popen([py, HERE, '--role', 'control'] if args.control else
-                         [py, '-m', 'accel_calib_ros.nodes.correction', '--ros-args',
-                          '--log-level', 'warn', '-p', f'calibration_file:={cal_path}'],
+                         ([py, '-m', 'accel_calib_ros.nodes.correction']
+                          if args.executor == 'group' else
+                          [py, os.path.join(os.path.dirname(HERE), 'multithreaded_node.py'),
+                           'correction'])
+                         + ['--ros-args', '--log-level', 'warn', '-p',
+                            f'calibration_file:={cal_path}'],
                          env=env),
         subprocess.Popen([py, HERE, '--role', 'relay'], env=env),
     ]

@@ -61,10 +61,19 @@ SAME_GYRO_BIAS_RAD_S = 1e-9
 """``gyro.bias`` and ``gyro_bias_rad_s`` must agree to this, rad/s (one bias per file)."""
 
 
-def default_calibration_path():
-    """Where the nodes keep the calibration unless told otherwise."""
+def default_calibration_path(sensor=None):
+    """
+    Where the calibration is kept unless told otherwise: one folder per sensor.
+
+    ``$ROS_HOME/accel_calib_ros/<sensor>/calibration.yaml`` (``$ROS_HOME`` defaults to
+    ``~/.ros``); the sensor id's ``/``-separated parts are folders (``robot1/imu_link``),
+    empty, ``.`` and ``..`` parts are left out. Without a sensor: the package's folder.
+
+    :param sensor: the sensor id (the nodes: namespace and frame_id), or None.
+    """
     root = os.environ.get('ROS_HOME', os.path.join(os.path.expanduser('~'), '.ros'))
-    return os.path.join(root, 'accel_calib_ros', 'calibration.yaml')
+    parts = [p for p in str(sensor or '').split('/') if p not in ('', '.', '..')]
+    return os.path.join(root, 'accel_calib_ros', *parts, 'calibration.yaml')
 
 
 # -- writing ---------------------------------------------------------------------------

@@ -53,10 +53,10 @@ class HistoryDamaged(InputError):
     """The history database is damaged or not a history (one line naming the damage)."""
 
 
-def default_history_path():
-    """``history.sqlite`` in the directory of the default calibration file."""
+def default_history_path(sensor=None):
+    """``history.sqlite`` beside the default calibration file (of ``sensor``, if given)."""
     from .calibration_file import default_calibration_path
-    return os.path.join(os.path.dirname(default_calibration_path()), 'history.sqlite')
+    return os.path.join(os.path.dirname(default_calibration_path(sensor)), 'history.sqlite')
 
 
 def new_session_id():

@@ -2,23 +2,23 @@
 ROS 2 node ``accel_calibration``: collect static poses, advise, solve on request, save.
 
 The live front door of the session floor; docs/calibration_node.md describes it whole.
-The samples come in on a node and thread of their own (:mod:`.calibration_intake`); every
-0.1 s they go to the streaming static-window detector and to the IMU collector, and each
-window brings the advice (``~/advice``, ``~/status``, ``/diagnostics``). ``~/calibrate``
-fits, judges, saves and records with the session floor (``session.finish``) in a worker
-thread (:mod:`.calibration_job`) and answers when it is done, while the samples,
-``/diagnostics`` and the parameter services go on; a second call meanwhile is refused
-with the reason. The model-gap check follows in the worker and
-lands on ``~/status``.
+The samples come in on a callback group and thread of their own
+(:mod:`.calibration_intake`); every 0.1 s they go to the streaming static-window detector
+and to the IMU collector (:meth:`CalibrationNode.process_pending`: where one more
+per-sample state would go), and each window brings the advice (``~/advice``,
+``~/status``, ``/diagnostics``: :mod:`.calibration_report`). ``~/calibrate`` fits, judges
+and saves with the session floor (``session.finish``)
+in a worker thread (:mod:`.calibration_job`) and answers when it is done, while the
+samples, ``/diagnostics`` and the parameter services go on; a second call meanwhile is
+refused with the reason, and so is a call on SIGINT before its save has begun. The
+model-gap check follows in the worker and lands on ``~/status``. The calibration is made
+for the sensor of the namespace and ``frame_id`` (``sensor_id``), in its own files.
 """
 
 from collections import deque
-import json
-import math
-import os
 import time
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
@@ -28,11 +28,13 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from .calibration_intake import Intake, subscribe
-from .calibration_job import Job, run_job, worker
-from .calibration_params import check_rate, PARAMS, sensor_param  # noqa: F401
-from .common import (calibration_path, declare_parameters, expand_path, hardware_id,
-                     make_directory, ParameterProblem, run, unsafe_output)
-from ..core.advice import advise, coverage
+from .calibration_job import Call, Job, run_job, STOPPING, worker
+from .calibration_params import check_rate, PARAMS
+from .calibration_report import Progress
+from .parameters import declare_parameters, ParameterProblem
+from .paths import (check_frame_id, history_path, make_directory, sensor_files, sensor_param,
+                    unsafe_output)
+from .spinning import run
 from ..core.collector import ImuCollector
 from ..core.errors import CalibrationError, InputError
 from ..core.finite import finite_or_none
@@ -49,38 +51,16 @@ COLLECT_BLOCK = 200
 """Samples handed to the collector at a time (the magnetometer samples of their time between)."""
 
 
-def safe_json(obj):
-    """JSON text with every non-finite number replaced by null (never NaN/Infinity)."""
-    def clean(value):
-        if isinstance(value, float):
-            return value if math.isfinite(value) else None
-        if isinstance(value, dict):
-            return {k: clean(v) for k, v in value.items()}
-        if isinstance(value, (list, tuple)):
-            return [clean(v) for v in value]
-        if isinstance(value, np.generic):
-            return clean(value.item())
-        if isinstance(value, np.ndarray):
-            return clean(value.tolist())
-        return value
-    return json.dumps(clean(obj), allow_nan=False)
-
-
-class CalibrationNode(Node):
+class CalibrationNode(Progress, Node):
     """Collect static windows from the raw IMU stream, advise, and calibrate on request."""
 
     def __init__(self, **kwargs):
         super().__init__('accel_calibration', **kwargs)
-        self.params = declare_parameters(self, PARAMS, self._on_params)
-        if self.params['threshold_factor'] and self.params['threshold_factor'] < 1.0:
-            raise ParameterProblem("parameter 'threshold_factor' must be 0 or >= 1, got "
-                                   f"{self.params['threshold_factor']!r}")
-        check_rate(self.params['rate_hz'])
+        self.params = declare_parameters(self, PARAMS, self._check_params, self._apply_params)
+        self._check_params(self.params, self.params)
         self.params['sensor_id'] = sensor_param(self.params['sensor_id'])
-        expand_path(self.params['history_file'], 'history_file')
-        self.path = calibration_path(self.params['calibration_file'])
-        files = (('calibration_file', self.path), ('history_file', self.history_path()))
-        for what, path in files:
+        self.sensor, self.path, self.history = self._files(self.params)
+        for what, path in (('calibration_file', self.path), ('history_file', self.history)):
             reason = unsafe_output(path)
             if reason:      # the file system may change: log it now, refuse each write
                 self.get_logger().error(f'{what}: {reason}; it will not be written')
@@ -90,12 +70,15 @@ class CalibrationNode(Node):
         self._seq = 0
         self._last_result = None    # {'success', 'message', ...} of the last ~/calibrate
         self._advice = None
+        self._last_coverage = None  # the coverage last published (kept between windows)
         self._model_gap = None
         self._coverage = None       # fraction of the sphere of field directions seen
         self.imu = ImuCollector(self.params['max_gyro_samples'],
                                 self.params['max_mag_samples'])
         self._worker = worker('accel_calibration_fit')
         self._solving = None        # monotonic start of the ~/calibrate that runs, or None
+        self._call = None           # its Call
+        self._stopping = False      # a signal came: calls are refused, no save begins
         self._gap = (0, None)       # (number of the check asked for, its finished future)
         self._gap_asked = 0
         self._gap_guard = self.create_guard_condition(self._on_model_gap)
@@ -103,9 +86,9 @@ class CalibrationNode(Node):
         self.status_pub = self.create_publisher(String, '~/status', LATCHED)
         self.advice_pub = self.create_publisher(String, '~/advice', LATCHED)
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        # The samples in a callback group of their own: nodes.common.run spins it on the
-        # main thread with nothing else in its wait set, so nothing of this node's
-        # (services, timers, advice) delays them. One node per process: a __node:=
+        # The samples in a callback group of their own: nodes.spinning runs it on a thread
+        # and executor of its own with nothing else in its wait set, so nothing of this
+        # node's (services, timers, advice) delays them. One node per process: a __node:=
         # remap names exactly one node.
         self.intake = Intake(lambda: self.get_clock().now().nanoseconds * 1e-9)
         self.stream_group = MutuallyExclusiveCallbackGroup()
@@ -118,13 +101,26 @@ class CalibrationNode(Node):
         self.create_timer(1.0, self.publish_diagnostics)
         self.publish_status(advice=True)
         self.get_logger().info(
-            f'collecting static poses (method {self.params["method"]}, file {self.path}); '
-            'hold each pose still for 2 s, follow ~/advice, then call ~/calibrate')
+            f'collecting static poses of sensor {self.sensor} (method '
+            f'{self.params["method"]}, file {self.path}); hold each pose still for 2 s, '
+            'follow ~/advice, then call ~/calibrate')
 
     def destroy_node(self):
         """Stop the worker (waiting for the work it has begun), then destroy the node."""
         self._worker.shutdown(wait=True, cancel_futures=True)
         return super().destroy_node()
+
+    def stop_requested(self):
+        """
+        Stop on a signal (``nodes.spinning.run``): answer a running ``~/calibrate`` now.
+
+        From here on a call is refused ("shutting down") and no save begins; a call whose
+        save has begun completes and is answered (``run`` waits for it).
+        """
+        self._stopping = True
+        call = self._call
+        if call is not None:
+            call.stop(self._refused(STOPPING, call.imu))
 
     # -- parameters ------------------------------------------------------------------------
     def _detector_settings(self):
@@ -141,24 +137,33 @@ class CalibrationNode(Node):
     def _make_directory(self, path):
         make_directory(path, self.get_logger())
 
-    def _on_params(self, changes):
-        """Apply a runtime parameter change (called by the common mechanism)."""
-        if changes.get('threshold_factor', 0.0) and changes['threshold_factor'] < 1.0:
-            raise ParameterProblem("parameter 'threshold_factor' must be 0 or >= 1")
-        if 'rate_hz' in changes:
-            check_rate(changes['rate_hz'])
+    def _files(self, params):
+        """Return (sensor id, calibration file, history file) the parameters ``params`` say."""
+        sensor, path = sensor_files(self.get_namespace(), params)
+        return sensor, path, history_path(params['history_file'], path)
+
+    def _check_params(self, changes, proposed):
+        """Refuse a start-up value or a change the node cannot work with (no side effects)."""
+        if proposed['threshold_factor'] and proposed['threshold_factor'] < 1.0:
+            raise ParameterProblem("parameter 'threshold_factor' must be 0 or >= 1, got "
+                                   f"{proposed['threshold_factor']!r}")
+        check_rate(proposed['rate_hz'])
+        check_frame_id(proposed['frame_id'])
+        _, path, history = self._files(proposed)
+        if changes is proposed or not set(changes) & {'sensor_id', 'frame_id',
+                                                      'calibration_file', 'history_file'}:
+            return                      # start-up: logged in __init__ (the disk may change)
+        for name, value in (('calibration_file', path), ('history_file', history)):
+            reason = unsafe_output(value)
+            if reason:
+                raise ParameterProblem(f'{name}: {reason}')
+
+    def _apply_params(self, changes):
+        """Make an accepted change take effect (called after rclpy stored it)."""
         if 'sensor_id' in changes:
             self.params['sensor_id'] = sensor_param(changes['sensor_id'])
-        if 'history_file' in changes:
-            reason = unsafe_output(self.history_path())
-            if reason:
-                raise ParameterProblem(f'history_file: {reason}')
-        if 'calibration_file' in changes:
-            path = calibration_path(changes['calibration_file'])
-            reason = unsafe_output(path)
-            if reason:
-                raise ParameterProblem(f'calibration_file: {reason}')
-            self.path = path
+        if set(changes) & {'sensor_id', 'frame_id', 'calibration_file', 'history_file'}:
+            self.sensor, self.path, self.history = self._files(self.params)
             self._make_directory(self.path)
         if 'max_windows' in changes:
             self.windows = deque(self.windows, maxlen=changes['max_windows'])
@@ -221,126 +226,6 @@ class CalibrationNode(Node):
         if publish:
             self.publish_status(window, advice=True)
 
-    # -- progress --------------------------------------------------------------------------
-    def window_set(self, extra=()):
-        """Return the windows kept (and ``extra`` ones) as a WindowSet."""
-        return WindowSet.from_windows(list(self.windows) + [
-            w if isinstance(w, Window) else Window.from_detector(w) for w in extra])
-
-    def _arrays(self, extra=()):
-        obs = self.window_set(extra).observations(self.params['max_weight_s'],
-                                                  self.detector.rate_hz)
-        noise = obs.noise if obs.noise is not None else np.zeros(3)
-        return obs.readings, obs.weights, obs.temps, noise
-
-    def _method(self):
-        return 'gn' if self.params['method'] == 'gn' else 'ml'
-
-    def compute_advice(self):
-        """Return the §5 advice (interface.md) for the windows so far (numbers finite or None)."""
-        means, weights, _, noise = self._arrays()
-        try:
-            advice = advise(means, weights, noise if len(means) else 0.03,
-                            self.params['gravity'], method=self._method(),
-                            target=self.params['target_accuracy'])
-        except (InputError, CalibrationError, ValueError, np.linalg.LinAlgError) as err:
-            self.get_logger().debug(f'advice skipped: {err}')
-            return None, None
-        return advice, advice.to_dict()
-
-    def progress(self, advice=None):
-        """Summarise the collection as a dict (what ``~/status`` publishes)."""
-        means, weights, temps, noise = self._arrays()
-        d = {'windows': len(means), 'rate_hz': finite_or_none(self.detector.rate_hz, 3),
-             'seq': self._seq, 'dropped_samples': self.intake.dropped,
-             'samples_received': self.intake.received, 'calibrating': self._solving is not None,
-             'coverage': {'min_eigenvalue_x3': 0.0, 'distinct_directions': 0},
-             'predicted_accuracy': None, 'target_accuracy': self.params['target_accuracy'],
-             'enough': False, 'next_pose': None, 'last_window': None,
-             'temperature_c': None, 'last_calibration': self._last_result,
-             'model_gap': self._model_gap, 'imu': self.imu.state(self._coverage)}
-        if self._advice is not None:
-            a = self._advice
-            d['predicted_accuracy'] = a['predicted_accuracy']
-            d['enough'] = a['enough']
-            d['next_pose'] = a['next_pose']
-        if advice is not None and advice.directions is not None and len(advice.directions):
-            eig, distinct = coverage(advice.directions)
-            d['coverage'] = {'min_eigenvalue_x3': round(eig, 4),
-                             'distinct_directions': int(distinct)}
-        elif self._last_coverage is not None:
-            d['coverage'] = self._last_coverage
-        finite_t = temps[np.isfinite(temps)]
-        if len(finite_t):
-            d['temperature_c'] = [round(float(finite_t.min()), 2),
-                                  round(float(finite_t.max()), 2)]
-        self._last_coverage = d['coverage']
-        return d
-
-    _last_coverage = None
-
-    def publish_status(self, window=None, advice=False):
-        """
-        Publish ``~/status`` (and ``~/advice`` when asked); log one line for a new window.
-
-        :param window: the window just finished, or None.
-        :param advice: recompute and publish the advice.
-        """
-        self._seq += 1
-        obj = None
-        if advice:
-            obj, self._advice = self.compute_advice()
-            self._coverage = self.imu.coverage() if len(self.imu.mag) >= 10 else None
-            if self._advice is not None:
-                self.advice_pub.publish(String(data=safe_json(self._advice)))
-        d = self.progress(obj)
-        if window is not None:
-            d['last_window'] = {
-                'mean': [finite_or_none(v, 5) for v in window.mean],
-                'count': int(window.count), 'duration_s': finite_or_none(window.duration_s, 3)}
-            pose = d['next_pose']
-            acc = d['predicted_accuracy']
-            self.get_logger().info(
-                f'window {d["windows"]}: mean ({", ".join(f"{v:.3f}" for v in window.mean)})'
-                f' m/s2, {window.count} samples; predicted accuracy '
-                + (f'{acc:.4f} m/s2' if acc is not None else 'not yet')
-                + ('; enough' if d['enough'] else
-                   f'; next: {pose["name"]}' if pose else ''))
-        self.status_pub.publish(String(data=safe_json(d)))
-
-    def publish_diagnostics(self):
-        """Publish the collection state on /diagnostics (REP-107)."""
-        n = len(self.windows)
-        acc = self._advice['predicted_accuracy'] if self._advice else None
-        status = DiagnosticStatus(level=DiagnosticStatus.OK,
-                                  name=f'{self.get_name()}: collection',
-                                  hardware_id=hardware_id(self.frame_id))
-        status.message = f'{n} static windows' + (
-            f', predicted accuracy {acc:.4f} m/s2' if acc is not None else '')
-        if self.detector.rate_hz is None:
-            status.level = DiagnosticStatus.WARN
-            status.message = 'no imu/data_raw received yet'
-        if self._last_result is not None and not self._last_result['success']:
-            status.level = DiagnosticStatus.WARN
-            status.message += '; last calibration refused'
-        values = {'windows': n, 'rate_hz': finite_or_none(self.detector.rate_hz, 2),
-                  'imu_received': self.intake.received,
-                  'dropped_non_finite_samples': self.intake.dropped,
-                  'calibrating': self._solving is not None,
-                  'predicted_accuracy_m_s2': acc,
-                  'target_accuracy_m_s2': self.params['target_accuracy'],
-                  'calibration_file': self.path,
-                  'last_calibration': (self._last_result or {}).get('message', 'none')}
-        imu = self.imu.state(self._coverage)
-        values.update({'gyro_received': imu['gyro_received'],
-                       'raw_samples_kept': imu['raw_samples'],
-                       'mag_received': imu['mag_received'], 'mag_samples_kept': imu['mag_samples'],
-                       'mag_coverage': imu['mag_coverage']})
-        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
-        array = DiagnosticArray(status=[status])
-        array.header.stamp = self.get_clock().now().to_msg()
-        self.diag_pub.publish(array)
-
     # -- services --------------------------------------------------------------------------
     def on_reset(self, request, response):
         """
@@ -356,6 +241,7 @@ class CalibrationNode(Node):
         self.imu.clear()
         self.detector.finish()
         self._model_gap = None
+        self._last_coverage = self._coverage = None
         self.publish_status(advice=True)
         response.success = True
         response.message = f'cleared {n} windows'
@@ -375,9 +261,9 @@ class CalibrationNode(Node):
         :return: the response: success, the key figures and the predicted accuracy, or
             the reason for refusal.
         """
-        if self._solving is not None:
+        if self._stopping or self._solving is not None:
             response.success = False
-            response.message = (
+            response.message = f'refused: {STOPPING}' if self._stopping else (
                 'refused: a calibration is already running (started '
                 f'{time.monotonic() - self._solving:.1f} s ago); its result comes in the '
                 'response to that call and on ~/status')
@@ -390,20 +276,27 @@ class CalibrationNode(Node):
             self.publish_status()
             done = Future(executor=self.executor)
             done.add_done_callback(lambda _: None)      # its result wakes the executor
-            self._worker.submit(run_job, job).add_done_callback(done.set_result)
+            call = self._call = Call(done, job.imu)
+            self._worker.submit(run_job, job, call.may_save).add_done_callback(call.finish)
+            if self._stopping:
+                self.stop_requested()
             outcome, notes = (await done).result()
         except Exception as err:        # noqa: B902 - a bug must not take the node down
             self.get_logger().error(f'~/calibrate failed: {type(err).__name__}: {err}')
-            outcome, notes = refused(f'internal error: {type(err).__name__}: {err}',
-                                     words=NODE), []
+            outcome, notes = self._refused(f'internal error: {type(err).__name__}: {err}')
         finally:
-            self._solving = None
+            self._solving = self._call = None
         self._report(outcome, notes, response)
-        if job is not None:
+        if job is not None and not self._stopping:
             cal = outcome.calibration
             self._schedule_model_gap(job.windows, None if cal is None or cal.thermal is None
                                      else len(cal.thermal.usable))
         return response
+
+    @staticmethod
+    def _refused(reason, imu=None):
+        """Return (a refused Outcome, no notes): ``reason``, the other sensors not fitted."""
+        return refused(reason, imu, words=NODE), []
 
     def calibrate_and_wait(self, timeout=300.0):
         """
@@ -432,7 +325,7 @@ class CalibrationNode(Node):
         for window in self.detector.release():
             self._add(window, publish=False)
         windows = self.window_set(self.detector.peek())
-        history = self.history_path() if self.params['history'] else None
+        history = self.history if self.params['history'] else None
         return Job(windows=windows,
                    rate_hz=self.detector.rate_hz,
                    settings=self.settings(), imu=CollectedImu(self.imu.snapshot(), windows),
@@ -473,17 +366,9 @@ class CalibrationNode(Node):
                         max_cross_axis=p['max_cross_axis'], max_bias_g=p['max_bias_g'],
                         max_gyro_error=p['max_gyro_error'], max_mag_error=p['max_mag_error'],
                         field_uT=p['field_uT'] or None,
-                        sensor_id=p['sensor_id'] or self.frame_id or None,
+                        sensor_id=self.sensor,
                         input_units=SI_UNITS,
                         source=f'ros node {self.get_fully_qualified_name()}', words=NODE)
-
-    def history_path(self):
-        """Return the history database path ('' = next to the calibration file)."""
-        value = self.params['history_file']
-        if value:
-            return expand_path(value, 'history_file')
-        return os.path.join(os.path.dirname(os.path.abspath(calibration_path(
-            self.params['calibration_file']))), 'history.sqlite')
 
     # -- model-gap check (in the worker, after the response) -----------------------------
     def _schedule_model_gap(self, windows, thermal_bands):

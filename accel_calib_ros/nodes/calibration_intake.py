@@ -2,7 +2,7 @@
 The calibration node's intake: every message taken in, as little work as possible each.
 
 The three sensor topics are read in a callback group of their own, spun on its own
-executor and thread (``nodes.common.run``: nothing else in that wait set, no parameter
+executor and thread (``nodes.spinning``: nothing else in that wait set, no parameter
 services, no timers), with a queue deep enough for two seconds at 1 kHz. A message is
 read from its serialised form (``raw=True``): the stamp and the nine numbers the node
 needs are unpacked where the CDR encoding puts them (a few microseconds, against some
@@ -10,6 +10,16 @@ needs are unpacked where the CDR encoding puts them (a few microseconds, against
 deserialisation as the fallback for anything else. :class:`Intake` only appends rows
 under a lock; the node's timer takes them every 0.1 s (:meth:`Intake.take`) for the
 detector and the collector, so nothing the samples wait for runs on their thread.
+
+Time order: every consumer of the samples (the streaming detector, the collector, the
+gyroscope's moves, the magnetometer's pairing) needs increasing times. The stamps step
+back when a bag loops, a simulator restarts or another device (clock) takes over; the
+intake then shifts the times of what follows so that it starts :data:`RESTART_GAP_S`
+after the last sample taken in (:class:`StreamTime`): each consumer sees a gap, where it
+already restarts (a window never spans it, a gyro move across it is dropped), and
+nothing is ever out of order. A magnetometer sample farther than
+:data:`MAG_TOLERANCE_S` from the newest Imu time is dropped (at a step, the ones of the
+other side).
 """
 
 import math
@@ -28,6 +38,10 @@ _HEAD = struct.Struct('<iII')                   # stamp sec, nanosec, frame_id l
 _IMU = struct.Struct('<15d')                    # angular velocity, its covariance, accel
 _THREE = struct.Struct('<3d')
 _ONE = struct.Struct('<d')
+RESTART_GAP_S = 10.0
+"""The gap a step back in the stamps becomes, s (beyond every consumer's gap limit)."""
+MAG_TOLERANCE_S = 1.0
+"""A magnetometer sample this far from the newest Imu time is dropped, s."""
 
 
 def _body(data):
@@ -50,6 +64,30 @@ def stamp_seconds(stamp):
     return stamp.sec + stamp.nanosec * 1e-9
 
 
+class StreamTime:
+    """
+    Times that only increase: a step back starts a new stretch :data:`RESTART_GAP_S` later.
+
+    ``steps`` counts the steps back; ``last`` is the newest time given, s.
+    """
+
+    def __init__(self):
+        self.offset = 0.0
+        self.last = None
+        self.steps = 0
+
+    def __call__(self, t):
+        """Return the increasing time of a stamp ``t`` (s), in arrival order."""
+        t += self.offset
+        last = self.last
+        if last is not None and t <= last:
+            self.offset += last + RESTART_GAP_S - t
+            t = last + RESTART_GAP_S
+            self.steps += 1
+        self.last = t
+        return t
+
+
 class Intake:
     """
     What the stream thread takes in, until the node's timer takes it over.
@@ -67,6 +105,8 @@ class Intake:
         self.received = 0       # imu/data_raw messages taken in
         self.dropped = 0        # of them with a non-finite acceleration
         self.mag_received = 0
+        self.mag_dropped = 0    # magnetometer samples not near the Imu times (a step)
+        self.time = StreamTime()
 
     # -- the callbacks (stream thread) -----------------------------------------------------
     def on_imu(self, msg):
@@ -100,7 +140,7 @@ class Intake:
             return
         if t <= 0.0:                                            # unstamped: receive time
             t = self.now()
-        row = (t,) + tuple(accel) + tuple(gyro) + (self.temperature,)
+        row = (self.time(t),) + tuple(accel) + tuple(gyro) + (self.temperature,)
         with self.lock:
             self.rows.append(row)
 
@@ -123,6 +163,11 @@ class Intake:
         if t <= 0.0:
             t = self.now()
         self.mag_received += 1
+        t += self.time.offset
+        last = self.time.last
+        if last is not None and abs(t - last) > MAG_TOLERANCE_S:
+            self.mag_dropped += 1
+            return
         with self.lock:
             self.mags.append((t, f[0] * 1e6, f[1] * 1e6, f[2] * 1e6))
 

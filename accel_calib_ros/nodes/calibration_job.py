@@ -16,9 +16,12 @@ within tens of milliseconds and every sample was taken in during the call, witho
 start-up, memory and copying of a second interpreter.
 """
 
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
+import threading
 from typing import Optional
+
+from ..session.settings import NODE
 
 
 @dataclass
@@ -44,18 +47,75 @@ class Job:
     now: float
 
 
-def run_job(job):
+STOPPING = NODE.stopping
+"""The refusal of a ``~/calibrate`` answered on SIGINT or SIGTERM before its save."""
+
+
+def run_job(job, may_save=None):
     """
     Fit, judge, save and record one session in the worker thread (as ``fit`` and ``guide``).
 
+    :param may_save: callable -> bool asked right before the save (:meth:`Call.may_save`):
+        False refuses the outcome (:data:`STOPPING`) and nothing is written.
     :return: (Outcome, notes): the notes are what the node logs as warnings (the history
         could not record it).
     """
     from ..session.finish import finish_session, HistoryTarget
     outcome = finish_session(job.windows, job.settings, job.imu, rate_hz=job.rate_hz,
                              output=job.path, history=HistoryTarget(job.history, now=job.now)
-                             if job.history else None)
+                             if job.history else None, may_save=may_save)
     return outcome, outcome.notes
+
+
+class Call:
+    """
+    One ``~/calibrate`` in progress: answered exactly once, never saved after a stop.
+
+    The worker's result reaches the service coroutine through ``done`` (an rclpy Future
+    of the node's executor, its result a ``concurrent.futures.Future`` of (Outcome,
+    notes)). On a stop (:meth:`stop`) the call is answered at once with a refusal, unless
+    the save has begun: then the save completes and is answered.
+
+    :param done: the rclpy Future the service callback awaits.
+    :param imu: the job's ``CollectedImu`` (the words of a refusal).
+    """
+
+    def __init__(self, done, imu):
+        self.done, self.imu = done, imu
+        self.lock = threading.Lock()
+        self.saving = False
+        self.stopping = False
+        self.answered = False
+
+    def may_save(self):
+        """Return whether the worker may save now (worker thread): not after a stop."""
+        with self.lock:
+            self.saving = not self.stopping
+            return self.saving
+
+    def finish(self, result):
+        """Hand the worker's result (a concurrent Future) to the call, unless answered."""
+        with self.lock:
+            if self.answered:
+                return
+            self.answered = True
+        self.done.set_result(result)
+
+    def stop(self, refused):
+        """
+        Answer with ``refused`` (Outcome, notes) now, unless the save has begun.
+
+        :return: whether the call was answered here.
+        """
+        with self.lock:
+            self.stopping = True
+            if self.saving or self.answered:
+                return False
+            self.answered = True
+        result = Future()
+        result.set_result(refused)
+        self.done.set_result(result)
+        return True
 
 
 def worker(name):

@@ -1,14 +1,13 @@
 """
 The parameters of the ``accel_calibration`` node: each described once, typed and ranged.
 
-``nodes.common.declare_parameters`` declares them with their descriptors and checks every
-start-up value and runtime change; the checks that span a value's meaning (a sample rate
-that is an IMU's, a sensor id that is printable) live here too.
+``nodes.parameters.declare_parameters`` declares them with their descriptors and checks
+every start-up value and runtime change; the check that spans a value's meaning (a sample
+rate that is an IMU's) lives here too (a sensor id's: ``paths.sensor_param``).
 """
 
-from .common import Param, ParameterProblem
+from .parameters import Param, ParameterProblem
 from ..core.collector import DEFAULT_MAX_MAG_SAMPLES, DEFAULT_MAX_SAMPLES
-from ..core.errors import InputError
 from ..core.windows import DEFAULTS
 from ..session.settings import DEFAULT_SETTINGS as S, LIVE_METHODS, THERMAL_MODES
 
@@ -25,8 +24,11 @@ def _detector_param(name, description):
 PARAMS = [
     Param('method', S.method, 'solver: ml (Sun & Xu, 9 parameters), gn (6 parameters) or '
           'ml-bc', choices=LIVE_METHODS),
+    Param('frame_id', 'imu_link',
+          "the sensor's frame_id (the driver's): with the namespace it names the sensor "
+          '(sensor_id) and its default files', empty_ok=False),
     Param('calibration_file', '',
-          "YAML file written by ~/calibrate ('' = $ROS_HOME/accel_calib_ros/"
+          "YAML file written by ~/calibrate ('' = $ROS_HOME/accel_calib_ros/<sensor_id>/"
           'calibration.yaml); its directory is created'),
     Param('gravity', S.gravity, 'local gravity magnitude, m/s2', low=9.7, high=9.9),
     Param('band_width_c', S.band_width_c, 'width of a temperature band, degC', low=0.1,
@@ -62,12 +64,13 @@ PARAMS = [
           'sample rate to start with, Hz: 0 (measure it from the stamps; always tracked) '
           f'or {MIN_RATE_HZ:g} .. 100000', low=0.0, high=100000.0),
     Param('sensor_id', '',
-          "name of the sensor in the history ('' = the messages' frame_id); printable, "
-          'surrounding spaces dropped'),
+          'the sensor the calibration is made for, recorded in the file and the history '
+          "('' = namespace/frame_id, e.g. robot1/imu_link); printable, surrounding spaces "
+          'dropped'),
     Param('history', True,
           'record each saved calibration and its windows in the history database'),
     Param('history_file', '',
-          "history database ('' = history.sqlite next to calibration_file)"),
+          "history database ('' = history.sqlite beside calibration_file)"),
     Param('max_gyro_samples', DEFAULT_MAX_SAMPLES,
           'raw samples kept for the gyroscope scale/misalignment fit (36 bytes each; the '
           'moves between the windows still kept are used; 0 = no gyro T)', low=0,
@@ -94,14 +97,3 @@ def check_rate(rate_hz):
     if rate_hz and rate_hz < MIN_RATE_HZ:
         raise ParameterProblem(f"parameter 'rate_hz' must be 0 or >= {MIN_RATE_HZ:g} Hz, got "
                                f'{rate_hz!r}')
-
-
-def sensor_param(value):
-    """Normalise a sensor id parameter ('' stays '': the frame_id is used)."""
-    if not value:
-        return value
-    from ..dataio.sensor_id import normalise_sensor_id
-    try:
-        return normalise_sensor_id(value)
-    except InputError as err:
-        raise ParameterProblem(f"parameter 'sensor_id': {err}") from None

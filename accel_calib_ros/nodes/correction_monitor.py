@@ -36,13 +36,11 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 import numpy as np
-from rcl_interfaces.msg import ParameterDescriptor, ParameterType
-from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from .common import Param, ParameterProblem
+from .parameters import Param, ReportParameter
 from ..core.monitor import Block, FieldMonitor, MonitorSettings
 
 STATIONARY_TYPES = ('std_msgs/Bool', 'geometry_msgs/TwistStamped', 'geometry_msgs/Twist',
@@ -146,12 +144,10 @@ class NodeMonitor:
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.health_pub = node.create_publisher(String, '~/health', qos)
         node.create_service(Trigger, '~/reset_gyro_bias', self.on_reset)
-        node.declare_parameter(ESTIMATE_PARAM, [0.0, 0.0, 0.0], ParameterDescriptor(
-            name=ESTIMATE_PARAM, type=ParameterType.PARAMETER_DOUBLE_ARRAY, read_only=True,
-            description='the gyro bias change the node subtracts now (estimated at rest), '
-                        'rad/s, x y z of the corrected frame; reset with ~/reset_gyro_bias; '
-                        'reported by the node: a value given at start-up is ignored'),
-            ignore_override=True)
+        self.estimate = ReportParameter(
+            node, ESTIMATE_PARAM, [0.0, 0.0, 0.0],
+            'the gyro bias change the node subtracts now (estimated at rest), rad/s, x y z '
+            'of the corrected frame; reset with ~/reset_gyro_bias')
         self._subscribe_stationary()
 
     # -- the calibration and the parameters ----------------------------------------------
@@ -303,18 +299,8 @@ class NodeMonitor:
     def update_parameter(self):
         """Keep the read-only parameter equal to the estimate (control thread)."""
         value = [float(v) for v in self.bias]
-        try:
-            old = self.node.get_parameter(ESTIMATE_PARAM).value
-            if list(old) == value:
-                return
-            descriptor = self.node.describe_parameter(ESTIMATE_PARAM)
-            # The node's own write of its read-only report: rclpy's internal setter with
-            # the descriptor given (as declare_parameter does) skips the read-only check.
-            self.node._set_parameters_atomically_common(
-                [Parameter(ESTIMATE_PARAM, Parameter.Type.DOUBLE_ARRAY, value)],
-                {ESTIMATE_PARAM: descriptor})
-        except (AttributeError, TypeError, ParameterProblem) as err:   # another rclpy
-            self._problem = f'cannot update {ESTIMATE_PARAM}: {err}'
+        if list(self.estimate.value) != value and not self.estimate.report(value):
+            self._problem = f'cannot update {ESTIMATE_PARAM}'
 
     def publish_health(self, force=False):
         """Publish ``~/health`` when the check changed (or ``force``): one JSON object."""

@@ -5,8 +5,10 @@ The serial link (port, back-off, watchdog, info request, parser, stamps) is
 :class:`~accel_calib_ros.dataio.link.SerialLink`, ROS-free; this node keeps the
 parameters, turns the link's frames into ``imu/data_raw``, ``imu/temperature`` and
 ``imu/mag`` and packs the link's health (:func:`~accel_calib_ros.dataio.link.assess`)
-into ``/diagnostics`` once a second. What it publishes, when, and what the diagnostics
-say: docs/driver.md.
+into ``/diagnostics`` once a second. The stamps are the device clock mapped onto the
+host's wall time (or the receive time), never ``/clock``: ``use_sim_time`` is ignored
+here, with a warning. What it publishes, when, and what the diagnostics say:
+docs/driver.md.
 """
 
 import math
@@ -18,8 +20,9 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, MagneticField, Temperature
 
-from .common import (declare_parameters, hardware_id, Param, ParameterProblem, run,
-                     Throttled)
+from .parameters import declare_parameters, Param, ParameterProblem
+from .paths import check_frame_id, hardware_id, sensor_id, status_name
+from .spinning import run
 from ..dataio.link import assess, link_values, SerialLink, SystemClock
 from ..dataio.link.serial_link import LOG_PERIOD_S
 from ..dataio.wire import (ACCEL_LSB_PER_G, BY_KEY, chip_of, Converter, DEFAULT_CHIP,
@@ -42,7 +45,8 @@ PARAMS = [
           empty_ok=False),
     Param('baud', 1_000_000, 'serial baud rate; the firmware default is 1000000 (a change '
           'reopens the port)', low=300, high=12_000_000),
-    Param('frame_id', 'imu_link', 'frame_id of the messages', empty_ok=False),
+    Param('frame_id', 'imu_link', "frame_id of the messages (a tf2 frame: no leading '/')",
+          empty_ok=False),
     Param('accel_range_g', 2, 'accelerometer full scale, ±g (the info frame overrides it '
           'when ranges_from_device)', choices=tuple(ACCEL_LSB_PER_G)),
     Param('gyro_range_dps', 250, 'gyroscope full scale, ±°/s (the info frame overrides it '
@@ -75,17 +79,6 @@ def _stamp(seconds):
     return Time(sec=int(sec), nanosec=nanosec)
 
 
-class _NodeClock(SystemClock):
-    """The link's clocks: monotonic for its timing, the node's ROS clock for the stamps."""
-
-    def __init__(self, node):
-        self._ros = node.get_clock()
-
-    def host(self):
-        """Return ROS time, s."""
-        return self._ros.now().nanoseconds * 1e-9
-
-
 class Mpu9250Driver(Node):
     """
     The driver node; see the module docstring and docs/driver.md.
@@ -97,11 +90,13 @@ class Mpu9250Driver(Node):
 
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
-        self.params = declare_parameters(self, PARAMS, self._on_change)
+        self.params = declare_parameters(self, PARAMS, self._check_params, self._apply_params)
         p = self.params
-        if p['reconnect_max_s'] < p['reconnect_min_s']:
-            raise ParameterProblem("parameter 'reconnect_max_s' must be >= reconnect_min_s, "
-                                   f"got {p['reconnect_max_s']:g} < {p['reconnect_min_s']:g}")
+        self._check_params(p, p)
+        if self.get_parameter('use_sim_time').value:
+            self.get_logger().warning(
+                'use_sim_time is ignored by the driver: its stamps are the device clock '
+                'mapped onto wall time (leave the driver out when replaying a bag)')
         self.format = p['format']
         self.timestamp = p['timestamp']
         self.device_info = None         # the info frame of this connection
@@ -112,12 +107,9 @@ class Mpu9250Driver(Node):
         self.mag_published = 0
         self.mag_overflows = 0
         self.mag_held = 0
-        self._mag_unadjusted_warned = False
         self._temp_period_s = 0.0
         self._last_temp_stamp = None
-        self._baud_warned = False
-        self._jitter_warned = False
-        self._log_throttled = Throttled(self.get_logger(), LOG_PERIOD_S)
+        self._capacity_checked = None   # the (port, baud) whose capacity was judged
         self.link = None
         self._apply_settings()
         qos = QoSProfile(depth=QUEUE_DEPTH, history=HistoryPolicy.KEEP_LAST,
@@ -127,7 +119,7 @@ class Mpu9250Driver(Node):
         self.mag_pub = self.create_publisher(MagneticField, 'imu/mag', qos)
         self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.link = SerialLink(
-            p['port'], p['baud'], self.format, self.timestamp, clock=_NodeClock(self),
+            p['port'], p['baud'], self.format, self.timestamp, clock=SystemClock(),
             logger=self.get_logger(), on_samples=self._on_samples, on_info=self._handle_info,
             on_connect=self._on_connect, reconnect_min_s=p['reconnect_min_s'],
             reconnect_max_s=p['reconnect_max_s'], watchdog_s=p['watchdog_s'],
@@ -179,6 +171,7 @@ class Mpu9250Driver(Node):
         rate = p['temperature_rate_hz']
         self._temp_period_s = 1.0 / rate if rate > 0 else 0.0
         self.frame_id = p['frame_id']
+        self.sensor = sensor_id(self.get_namespace(), self.frame_id)
         link = self.link
         if link is not None:
             link.reconnect_min_s = p['reconnect_min_s']
@@ -199,13 +192,20 @@ class Mpu9250Driver(Node):
             cov[k] = stddev ** 2
         return cov
 
-    def _on_change(self, changes):
+    @staticmethod
+    def _check_params(changes, proposed):
+        """Refuse a start-up value or a change the driver cannot work with."""
+        if proposed['reconnect_max_s'] < proposed['reconnect_min_s']:
+            raise ParameterProblem(
+                "parameter 'reconnect_max_s' must be >= reconnect_min_s, got "
+                f"{proposed['reconnect_max_s']:g} < {proposed['reconnect_min_s']:g}")
+        check_frame_id(proposed['frame_id'])
+
+    def _apply_params(self, changes):
+        """Make an accepted change take effect (called after rclpy stored it)."""
         p = self.params
-        if p['reconnect_max_s'] < p['reconnect_min_s']:
-            raise ParameterProblem('reconnect_max_s must be >= reconnect_min_s')
         self._apply_settings()
         if 'port' in changes or 'baud' in changes:
-            self._baud_warned = False
             self.link.reopen(p['port'], p['baud'])
 
     # -- device information --------------------------------------------------------------
@@ -226,11 +226,11 @@ class Mpu9250Driver(Node):
         log = self.get_logger()
         if old is not None and info.recoveries > old.recoveries and \
                 info[:8] == old[:8] and info.frame_version == old.frame_version:
-            self._log_throttled(                # the firmware re-initialised the sensor
-                'recovery', 'warning',
+            log.warning(                        # the firmware re-initialised the sensor
                 f'the firmware recovered the sensor ({info.recovery_text}); '
                 f'{info.recoveries} recoveries, {info.i2c_errors} failed I2C transfers since it '
-                'started (firmware_recoveries in /diagnostics)')
+                'started (firmware_recoveries in /diagnostics)',
+                throttle_duration_sec=LOG_PERIOD_S)
             return
         text = (f'firmware {info.fw_version[0]}.{info.fw_version[1]}: {info.chip} '
                 f'(WHO_AM_I 0x{info.who_am_i:02x}), ±{info.accel_range_g} g, '
@@ -255,21 +255,20 @@ class Mpu9250Driver(Node):
         if not link.binary or parser.period_us is None or parser.frames < 50:
             return
         jitter = parser.jitter_us
-        if not self._jitter_warned and jitter is not None and jitter > JITTER_WARN_US:
-            self._jitter_warned = True
+        if jitter is not None and jitter > JITTER_WARN_US:
             self.get_logger().warning(
                 f'the device stamps its samples with {jitter:.0f} µs of jitter (a firmware '
                 'that stamps at read time?): frames are kept, and device timestamps carry '
-                'the jitter (timing_jitter_us in /diagnostics)')
-        if self._baud_warned:
+                'the jitter (timing_jitter_us in /diagnostics)', once=True)
+        if self._capacity_checked == (link.port, link.baud):
             return
+        self._capacity_checked = (link.port, link.baud)
         rate = 1e6 / parser.period_us
         baud = link.baud
         if self.device_info is not None:
             baud = min(baud, self.device_info.baud)
         size = FRAME_V2_SIZE if parser.version == 2 else FRAME_V1_SIZE
         capacity = baud / (BITS_PER_BYTE * size)
-        self._baud_warned = True
         if rate > capacity:
             self.get_logger().warning(
                 f'{baud} baud carries at most {capacity:.0f} frames/s of {size} bytes '
@@ -337,11 +336,10 @@ class Mpu9250Driver(Node):
                 return
             else:
                 conv = MagConverter()           # no ASA from this device: unadjusted
-                if not self._mag_unadjusted_warned:
-                    self._mag_unadjusted_warned = True
-                    self.get_logger().warning(
-                        'magnetometer samples without the AK8963 sensitivity adjustment (no '
-                        'info frame with ASA values): imu/mag is unadjusted, up to ±50 % off')
+                self.get_logger().warning(
+                    'magnetometer samples without the AK8963 sensitivity adjustment (no '
+                    'info frame with ASA values): imu/mag is unadjusted, up to ±50 % off',
+                    once=True)
         field = conv.to_tesla(block)
         if field is None:
             self.mag_overflows += 1             # ST2 HOFL: not a valid measurement
@@ -371,10 +369,10 @@ class Mpu9250Driver(Node):
                 return False
             self.publish_errors += 1
             self.last_publish_error = f'{publisher.topic_name}: {type(err).__name__}: {err}'
-            self._log_throttled(
-                'publish', 'error',
+            self.get_logger().error(
                 f'could not publish on {self.last_publish_error}; the message is dropped and '
-                f'the driver goes on (publish_errors {self.publish_errors} in /diagnostics)')
+                f'the driver goes on (publish_errors {self.publish_errors} in /diagnostics)',
+                throttle_duration_sec=LOG_PERIOD_S)
             return False
 
     # -- diagnostics ---------------------------------------------------------------------
@@ -394,8 +392,9 @@ class Mpu9250Driver(Node):
             self.diag_pub.publish(self.diagnostics())
         except Exception as err:        # noqa: B902 - the node never dies on its report
             if self.context.ok():
-                self._log_throttled('diagnostics', 'error',
-                                    f'diagnostics not published: {type(err).__name__}: {err}')
+                self.get_logger().error(
+                    f'diagnostics not published: {type(err).__name__}: {err}',
+                    throttle_duration_sec=LOG_PERIOD_S)
 
     def diagnostics(self):
         """
@@ -414,8 +413,8 @@ class Mpu9250Driver(Node):
         prev, self._diag_prev = self._diag_prev, snap
         level, message = assess(snap, prev, self.params['watchdog_s'])
         status = DiagnosticStatus()
-        status.name = f'{self.get_name()}: serial'
-        status.hardware_id = hardware_id(self.frame_id)
+        status.name = status_name(self, 'serial')
+        status.hardware_id = hardware_id(self.sensor)
         status.level = bytes((level,))
         status.message = message
         values = link_values(snap, prev)
@@ -469,7 +468,7 @@ def build_node(context=None, parameter_overrides=None):
 
 
 def main(args=None):
-    """Run the node until Ctrl-C; exit status 2 on a bad parameter."""
+    """Run the node until SIGINT or SIGTERM; exit status 2 on a bad parameter."""
     run(Mpu9250Driver, NODE_NAME, args)
 
 

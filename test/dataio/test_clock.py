@@ -61,9 +61,9 @@ def test_clock_mapper_starts_over_when_the_device_restarts():
     assert mapper.update(10_000, later + 0.0105) == pytest.approx(later + 0.01, abs=1e-3)
     # A sample of the old epoch (held back, stamped late) keeps its own line.
     assert mapper.stamp(tokens[-1]) == pytest.approx(true_host[-1] + 0.0015, abs=2e-3)
-    # A device clock far ahead of host time (1500 s in 10 ms): the line is made anew.
+    # A device clock far ahead of host time (1500 s in 10 ms): another clock, a new epoch.
     stamp = mapper.update(10_000 + 3_000_000_000 // 2, later + 0.02)
-    assert mapper.rebases == 1 and mapper.resets == 1
+    assert mapper.resets == 2 and mapper.last_step_s == pytest.approx(1500.0, abs=0.1)
     assert stamp == pytest.approx(later + 0.02, abs=1e-3)
 
 
@@ -126,6 +126,8 @@ def test_a_gap_and_a_buffered_reopen_keep_the_mapping():
     stamper = Stamper('device')
     stamps = {}
     for a, b, h in reads:
+        if a == gone.stop:
+            stamper.mapper.reopened()           # the link reopened the port: same board
         idx = [k for k in range(a, b) if not gone.start <= k < gone.stop]
         tokens = stamper.observe([RawFrame(0, int(t_us[k]), ()) for k in idx], h)
         if stamper.ready:
@@ -147,3 +149,31 @@ def test_host_stamps_spread_bursts_and_never_go_back():
     burst = np.diff(stamps[3001:3200])                 # by the device clock (float at 1.7e9 s)
     assert np.allclose(burst, np.diff(t_us[3001:3200].astype(float)) * 1e-6, atol=1e-6)
     assert stamps[3199] == pytest.approx(max(r[2] for r in reads if r[0] == 3000))
+
+
+@pytest.mark.parametrize('step_s', [600.0, -300.0, -5.0])
+def test_a_re_plug_onto_a_board_whose_clock_is_elsewhere_restarts_the_mapping(step_s):
+    """10 s of one board, 2 s unplugged, then a board whose clock is ``step_s`` off."""
+    rng = np.random.default_rng(8)
+    t0, host0 = 1_000_000_000, 1.7e9 + 3.0
+    a = usb_reads(10.0, 1000.0, 0, rng, t0_us=t0, host0=host0)
+    later = 12.0                                      # when the second board's stream starts
+    b = usb_reads(10.0, 1000.0, 0, rng, host0=host0 + later,
+                  t0_us=int(t0 + (later + step_s) * 1e6) % 2 ** 32)
+    stamper = Stamper('device')
+    got, true, arrival = [], [], []
+    for (t_us, truth, reads), reopened in ((a, False), (b, True)):
+        if reopened:
+            stamper.mapper.reopened()
+        for first, end, host in reads:
+            tokens = stamper.observe([RawFrame(0, int(t), ()) for t in t_us[first:end]], host)
+            got += stamper.stamps(tokens)
+            true += truth[first:end].tolist()
+            arrival += [host] * (end - first)
+    got, true, arrival = np.array(got), np.array(true), np.array(arrival)
+    assert stamper.mapper.resets == 1
+    assert stamper.mapper.last_step_s == pytest.approx(step_s, abs=0.05)
+    assert np.all(np.diff(got) > 0)                           # never backwards
+    assert np.max(got - arrival) <= stamper.mapper.jump_s     # never far after arrival
+    second = true >= host0 + later + 1.0                      # the new board, settled
+    assert np.max(np.abs(got[second] - true[second] - 0.0003)) < 1e-3

@@ -17,7 +17,7 @@ import threading
 import time
 
 from accel_calib_ros.nodes.calibration import CalibrationNode
-from accel_calib_ros.nodes.common import GroupExecutor
+from accel_calib_ros.nodes.spinning import GroupExecutor
 from accel_calib_ros.sim import sensor as sim
 from accel_calib_ros.sim.motion import random_poses, simulate_session
 import numpy as np
@@ -83,7 +83,7 @@ class Spun:
         for inside in (True, False):
             executor = GroupExecutor(node.stream_group, inside, context=node.context)
             if inside:
-                executor.share_node(node)
+                executor.serve(node)
             else:
                 executor.add_node(node)
             thread = threading.Thread(target=self._spin, args=(executor,), daemon=True)

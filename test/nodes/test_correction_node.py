@@ -344,7 +344,7 @@ def test_non_finite_input_is_dropped_and_counted(tmp_path, rig_factory):
     assert len(rig.received) == 1 and out.header.stamp.sec == good.header.stamp.sec
     assert rig.node._dropped == 2
     assert diagnostics_of(rig)[2]['dropped_non_finite'] == '2'
-    # One hardware_id per sensor across the nodes: the IMU's frame_id (nodes/common).
+    # One hardware_id per sensor across the nodes: the sensor id (nodes/paths).
     assert {s.hardware_id for s in rig.last_diagnostics()} == {good.header.frame_id}
 
 

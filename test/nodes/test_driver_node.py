@@ -78,7 +78,7 @@ def test_stream_reaches_the_graph(procs, collector, tmp_path):
     assert collector.spin_until(lambda: serial_status(collector) is not None, 5)
     status = serial_status(collector)
     assert status['connected'] == 'True' and status['port'].endswith('imu0')
-    assert status['hardware_id'] == 'imu_link'                # hardware_id(frame_id)
+    assert status['hardware_id'] == 'imu_link'                # the sensor id
     assert driver.poll() is None
     code, log = stop_node(driver)
     assert code == 0, log

@@ -46,10 +46,12 @@ def share_with_edits(tmp_path):
 
 def test_arguments_and_one_default_port(monkeypatch):
     args = launch_tools.arguments(launch_tools.load_description(LAUNCH, ROOT, monkeypatch))
-    for name in ('namespace', 'use_sim_time', 'port', 'frame_id', 'calibration_file'):
+    for name in ('namespace', 'use_sim_time', 'port', 'frame_id', 'calibration_file',
+                 'driver'):
         assert name in args and args[name][1], f'launch argument {name} (with a description)'
     assert args['namespace'][0] == '' and args['use_sim_time'][0] == 'false'
-    assert args['frame_id'][0] == 'imu_link'
+    assert args['frame_id'][0] == 'imu_link' and args['driver'][0] == 'true'
+    assert yaml.safe_load(args['calibration_file'][0]) == ''       # the sensor's default
     with open(os.path.join(ROOT, 'config', 'driver.yaml'), encoding='utf-8') as f:
         driver = yaml.safe_load(f)['/**']['ros__parameters']
     with open(os.path.join(ROOT, 'accel_calib_ros', 'nodes', 'driver.py'),
@@ -80,10 +82,15 @@ def test_command_lines_under_a_namespace(monkeypatch, tmp_path):
         with open(p['parameter_files'][-1], encoding='utf-8') as f:
             (key, body), = yaml.safe_load(f).items()
         assert key == f'/robot1/{p["name"]}'
-        assert body['ros__parameters']['use_sim_time'] is True
+        assert body['ros__parameters']['frame_id'] == 'robot1/imu'      # one sensor
+        # The driver's stamps are the device clock on wall time: never /clock.
+        assert body['ros__parameters'].get('use_sim_time') is (
+            None if p['name'] == 'mpu9250_driver' else True)
+        if p['name'] != 'mpu9250_driver':
+            assert body['ros__parameters']['calibration_file'] == ''    # per sensor
     driver = yaml.safe_load(open(procs[0]['parameter_files'][-1], encoding='utf-8'))
     assert driver['/robot1/mpu9250_driver']['ros__parameters'] == {
-        'port': '/dev/ttyUSB3', 'frame_id': 'robot1/imu', 'use_sim_time': True}
+        'port': '/dev/ttyUSB3', 'frame_id': 'robot1/imu'}
     # Without a namespace: no __ns remap, the nodes at the root.
     root = launch_tools.command_lines(actions, {}, str(tmp_path), bin_path)
     assert all('__ns:=' not in ' '.join(p['cmd']) for p in root)
@@ -105,6 +112,18 @@ def test_madgwick_chain_reads_the_corrected_stream(monkeypatch, tmp_path):
     assert params['publish_tf'] is False
     off = launch_tools.command_lines(actions, {'calibrate': 'false'}, str(tmp_path), bin_path)
     assert [p['name'] for p in off] == ['mpu9250_driver', 'accel_correction']
+
+
+def test_for_a_bag_or_a_simulator_the_driver_stays_out(monkeypatch, tmp_path):
+    actions = launch_tools.load_description(LAUNCH, ROOT, monkeypatch)
+    procs = launch_tools.command_lines(
+        actions, {'driver': 'false', 'use_sim_time': 'true', 'namespace': 'sim'},
+        str(tmp_path), bin_path)
+    assert [p['name'] for p in procs] == ['accel_calibration', 'accel_correction']
+    for p in procs:
+        with open(p['parameter_files'][-1], encoding='utf-8') as f:
+            assert yaml.safe_load(f)[f'/sim/{p["name"]}']['ros__parameters'][
+                'use_sim_time'] is True
 
 
 def _graph_and_parameters(collector, wanted, timeout):

@@ -5,7 +5,7 @@ import stat
 
 from accel_calib_ros.dataio.history import History
 from accel_calib_ros.nodes.calibration import CalibrationNode
-from accel_calib_ros.nodes.common import ParameterProblem
+from accel_calib_ros.nodes.parameters import ParameterProblem
 from accel_calib_ros.sim.motion import random_directions, simulate_session
 from accel_calib_ros.sim.sensor import mpu9250_like
 import numpy as np

@@ -65,7 +65,7 @@ def node_door(path, samples, windows, out, db):
     from accel_calib_ros.nodes.calibration_params import PARAMS
     params = {p.name: p.default for p in PARAMS}
     params.update(sensor_id=SENSOR, thermal='off')
-    node = SimpleNamespace(params=params, frame_id='imu_link',
+    node = SimpleNamespace(params=params, frame_id='imu_link', sensor=SENSOR,
                            get_fully_qualified_name=lambda: '/accel_calibration')
     job = Job(windows=windows, rate_hz=samples.rate_hz,
               settings=CalibrationNode.settings(node),

@@ -41,8 +41,9 @@ def assess(snap, prev, watchdog_s):
     no valid frame came for ``watchdog_s``, when the reader failed in the period, when no
     message could be published in it, or when the link is badly corrupted; WARN while
     waiting for the first frame after opening the port and when frames were lost, CRC
-    errors seen, some messages not published or the firmware recovered the sensor in the
-    period; OK only while frames flow cleanly. The node may add ``published``,
+    errors seen, some messages not published, the firmware recovered the sensor or the
+    device clock stepped (its mapping restarted) in the period; OK only while frames flow
+    cleanly. The node may add ``published``,
     ``publish_errors`` and ``last_publish_error`` to the snapshots.
 
     :param snap: :meth:`SerialLink.snapshot` now.
@@ -86,6 +87,13 @@ def assess(snap, prev, watchdog_s):
     if snap['binary'] and snap['strict']:
         return ERROR, (f'link badly corrupted (quality {snap["quality"]:.2f}): only frames '
                        'confirmed by both neighbours are published')
+    resets = snap.get('clock_resets', 0) - prev.get('clock_resets', 0)
+    if resets > 0:
+        step = snap.get('clock_step_s')
+        return WARN, ('the device clock ' + (f'stepped {step:+.3f} s' if step is not None
+                                             else 'restarted')
+                      + f' (a restart, or another device): the stamps follow it afresh '
+                      f'({snap["clock_resets"]} clock resets so far)')
     if recoveries > recoveries0:
         return WARN, (f'the firmware recovered the sensor {recoveries - recoveries0} times in '
                       f'the last period ({info.recovery_text}); {new_lost} samples lost')
@@ -121,6 +129,8 @@ def link_values(snap, prev):
               'info_timeouts': snap.get('info_timeouts', 0),
               'stamps_clamped': snap.get('stamps_clamped', 0),
               'clock_resets': snap.get('clock_resets', 0),
+              'clock_last_step_s': 'none' if snap.get('clock_step_s') is None
+              else f'{snap["clock_step_s"]:+.3f}',
               'last_frame_age_s': f'{silence:.2f}' if math.isfinite(silence) else 'none',
               'format': snap['format'], 'timestamp': snap['timestamp'], 'port': snap['port'],
               'baud': snap['baud']}

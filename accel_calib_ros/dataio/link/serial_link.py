@@ -320,6 +320,7 @@ class SerialLink:
         first_open = self.opened_at is None
         with self._lock:
             self._port = port
+            self.stamper.mapper.reopened()      # the device may be another (its clock too)
             self.opened_at = self.clock.monotonic()
             if first_open:
                 self.first_open_at = self.opened_at
@@ -436,7 +437,8 @@ class SerialLink:
         ``last_frame_at``, ``first_open_at``, ``opened_at``, ``stopped``, ``binary``,
         ``format``, ``timestamp``, ``baud``, ``port``, ``info`` (this connection's),
         ``info_age_s``, ``status_current``, ``frames_held``, ``info_timeouts``,
-        ``stamps_clamped``, ``clock_resets``, and for the binary format ``version``,
+        ``stamps_clamped``, ``clock_resets``, ``clock_step_s`` (the step of the device
+        clock that started the newest mapping, s, or None), and for the binary format ``version``,
         ``quality``, ``strict``, ``jitter_us``, ``period_us``; ``drift_ppm`` with device
         timestamps.
         """
@@ -462,7 +464,8 @@ class SerialLink:
                     'status_current': self.status_current(now),
                     'frames_held': len(self._queue), 'info_timeouts': self.info_timeouts,
                     'stamps_clamped': self.stamper.clamped,
-                    'clock_resets': self.clock_mapper.resets}
+                    'clock_resets': self.clock_mapper.resets,
+                    'clock_step_s': self.clock_mapper.last_step_s}
             if self.binary:
                 snap.update({'version': parser.version, 'quality': parser.quality,
                              'strict': parser.strict, 'jitter_us': parser.jitter_us,

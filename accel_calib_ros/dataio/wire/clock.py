@@ -80,7 +80,13 @@ class ClockMapper:
     correction beyond ``step_s`` is applied at once.
 
     The device clock is unwrapped (uint32 µs). A clock that steps backwards (a device
-    restart) starts a new epoch (``resets``): the old samples keep the old line. A point
+    restart, a re-plug onto another board) or forward so far that its sample would be
+    stamped more than ``jump_s`` after its own arrival (another board whose clock is
+    ahead) starts a new epoch (``resets``; ``last_step_s`` says by how much it stepped):
+    the old samples keep the old line, the new ones are mapped afresh. After the port was
+    reopened (:meth:`reopened`) the first read starts a new epoch also when its newest
+    sample would be stamped more than ``jump_s`` before its arrival (a board whose clock is
+    behind; what the OS buffer kept meanwhile is older, its newest sample is not). A point
     more than ``jump_s`` below the line (the device ahead of host time: the line was made
     from delayed data, such as a burst that waited in the OS buffer) or all points of the
     last ``shift_s`` above it by more than ``shift_min_s`` (the transport got slower, or the
@@ -124,6 +130,8 @@ class ClockMapper:
         self.shift_min_s = float(shift_min_s)
         self.resets = 0
         self.rebases = 0
+        self.last_step_s = None     # the step that started the newest epoch, s
+        self._reopened = False      # the next sample is the first of a new connection
         self.epoch = 0
         self._b_prior = 0.0
         self._rate_known = False    # a fit spanning slew_tau_s or more gave the rate
@@ -148,11 +156,21 @@ class ClockMapper:
         self._mapped_dev = None     # device time of the newest stamp given in this epoch
         self._backlog = None        # the epoch's first read held a backlog (old samples)
 
-    def reset(self):
-        """Forget the mapping (the device restarted): a new epoch; the rate is kept."""
+    def reset(self, step_s=None):
+        """
+        Forget the mapping (the device restarted): a new epoch; the rate is kept.
+
+        :param step_s: where the old mapping would have put the new clock, against the
+            sample's arrival, s (+ ahead, - behind), when known.
+        """
         self.resets += 1
+        self.last_step_s = step_s
         self.epoch += 1
         self._start_epoch()
+
+    def reopened(self):
+        """Say that the port was reopened: the device may be another, its clock elsewhere."""
+        self._reopened = True
 
     @property
     def drift_ppm(self):
@@ -190,11 +208,17 @@ class ClockMapper:
         :return: one token per sample, (epoch, device seconds), for :meth:`stamp`.
         """
         out = []
+        if self._reopened and len(t_us_list):
+            self._check_reopened(t_us_list[-1], host_s)
         for t_us in t_us_list:
             if self._last_raw is not None:
                 delta = ((t_us - self._last_raw) % WRAP) * 1e-6
+                ahead = self._ahead(self._dev + delta, host_s) if delta > self.jump_s else 0.0
                 if delta > WRAP * 0.5e-6:           # backwards: the device restarted
-                    self.reset()
+                    back = delta - WRAP * 1e-6
+                    self.reset(self._ahead(self._dev + back, host_s) or back)
+                elif ahead > self.jump_s:           # far ahead of its arrival: another clock
+                    self.reset(ahead)
                 else:
                     self._dev += delta
             if self._last_raw is None:
@@ -209,6 +233,30 @@ class ClockMapper:
             self._last_host = host_s
             self._point(self._dev, host_s - self._host0 - self._dev)
         return out
+
+    def _check_reopened(self, newest_t_us, host_s):
+        """
+        Restart on the first read after a reopen when its newest sample is far behind.
+
+        The newest sample of a read waited least (what the OS buffer kept while the port
+        was closed is older, and rightly so): if even it would be stamped more than
+        ``jump_s`` before its arrival, the device clock is behind the old one.
+        """
+        self._reopened = False
+        if self._last_raw is None:
+            return
+        delta = ((newest_t_us - self._last_raw) % WRAP) * 1e-6
+        if delta <= WRAP * 0.5e-6:                  # a step back is found sample by sample
+            behind = self._ahead(self._dev + delta, host_s)
+            if behind < -self.jump_s:
+                self.reset(behind)
+
+    def _ahead(self, dev, host_s):
+        """Return how far after ``host_s`` the line would stamp device time ``dev``, s."""
+        line = self._line or self._line_before
+        if line is None or self._host0 is None:
+            return 0.0
+        return self._host0 + dev + line[0] + line[1] * dev - host_s
 
     def _point(self, dev, off):
         line = self._line
@@ -313,7 +361,9 @@ class Stamper:
     the previous one after it becomes the previous one plus that half (``clamped`` counts
     these: receive-time jitter in ``host`` mode; in ``device`` mode only a device restart or
     a host clock step back), unless it lies more than ``step_back_s`` behind (the host clock
-    was set back): then it is kept (``stepped_back``). Samples without ``t_us`` get the
+    was set back): then it is kept (``stepped_back``). No stamp lies more than the
+    mapping's doubt (``mapper.jump_s``) after the arrival of its read: such a stamp
+    becomes the arrival (counted in ``clamped``). Samples without ``t_us`` get the
     receive time (never before the previous stamp).
 
     :param mode: ``device`` or ``host``.
@@ -373,6 +423,9 @@ class Stamper:
                     else:
                         self.clamped += 1
                         stamp = prev[0] + least
+            if stamp > host + self.mapper.jump_s:           # never far after its arrival
+                self.clamped += 1
+                stamp = host if prev is None else max(host, prev[0] + 1e-6)
             prev = (stamp, token)
             out.append(stamp)
         self._prev = prev
