@@ -324,6 +324,13 @@ class SessionFits:
                       [self.veto(name, setfit)])
         return trial, setfit
 
+    def where(self, setfit, top=3):
+        """Return the strongest correlations of the residuals of ``setfit`` with the variables."""
+        from .evidence import strongest_correlations
+        a = setfit.model.true_accel(setfit.fit.x, self.c)
+        return strongest_correlations(setfit.fit.residuals, self.c,
+                                      a / np.linalg.norm(a, axis=1, keepdims=True), top)
+
     def signature(self, setfit, name, given):
         """Return the orthonormal signature of ``name`` (as in ``setfit``) past ``given``."""
         return orthonormal(self._columns(given, setfit.bound[name]), given.basis)
