@@ -194,7 +194,7 @@ class Hysteresis:
         self.offset_per_c = np.asarray(self.offset_per_c, float).reshape(3).copy()
 
     def offset(self, time, temp, gap_s=GAP_S):
-        """Return the heating/cooling offset (N, 3) m/s² of temperatures ``temp`` at ``time``."""
+        """Return what the term adds to the readings, (N, 3) m/s², at ``temp`` and ``time``."""
         return np.outer(self.gradient(time, temp, gap_s), self.offset_per_c)
 
     def gradient(self, time, temp, gap_s=GAP_S):
