@@ -258,6 +258,46 @@ class StillFits(SessionFits):
                 / c.gravity
         return full._worst[key]
 
+    # -- the geometry of the naming simulation (``power.Design``) --------------------------
+
+    @property
+    def row_window(self):
+        """Return the bin of each residual, (3 N,): axis by axis."""
+        return np.tile(np.arange(len(self.c)), 3)
+
+    def noise_scale(self, setfit):
+        """Return the noise of each residual, m/s², (3 N,)."""
+        return self.c.flat_sigma
+
+    def power_grid(self, setfit, conditions, directions):
+        """Return the bins (and the same run the other way) over which a worst case is taken."""
+        return StillGrid(self.c, GRID_BINS)
+
+    def absorbed(self, setfit, grid):
+        """
+        Return what the model takes up of a residual, in corrected acceleration, (D, 3, 3 N) mg.
+
+        What the model subtracts at the grid's bins (``StillModel.correction``: the offsets
+        and the named effects, not the pose constants) changes by A dx per parameter
+        change; the least-squares map from a residual to dx is the pseudo-inverse of the
+        fit's Jacobian; through -T⁻¹ into corrected acceleration.
+        """
+        c, model = self.c, setfit.model
+        rows = grid.rows_index
+        k, p = model.per_axis, c.design.pose_cols.shape[1]
+        slopes = np.zeros((2 * len(rows), 3, model.n_params))
+        for i in range(3):
+            slopes[:, i, i * k + p:(i + 1) * k] = np.tile(c.design.node_cols[rows], (2, 1))
+        start = model.n_base
+        for name, size in zip(model.objects, model.sizes):
+            effect = model.objects[name]
+            cols = effect.columns(c.accel, c.temp, c.time, c.gravity)
+            slopes[:, :, start:start + size] = np.concatenate(
+                [cols[rows], effect.reverse_heating(cols)[rows]])
+            start += size
+        slopes = -np.einsum('ij,njk->nik', c.T_inv, slopes)
+        return 1000.0 / c.gravity * slopes @ np.linalg.pinv(setfit.fit.jac)
+
     def where(self, setfit, top=3):
         """Return the strongest correlations of the residuals with the session's variables."""
         c = self.c
@@ -272,6 +312,36 @@ class StillFits(SessionFits):
                                 'r': float(np.corrcoef(r[i], values)[0, 1])})
         out.sort(key=lambda d: -round(abs(d['r']), 6))
         return out[:top]
+
+
+GRID_BINS = 60
+"""Bins (evenly spread, the extremes of temperature and time among them) of the naming
+simulation's worst case; each is also taken run the other way."""
+
+
+class StillGrid:
+    """
+    The bins of a still recording over which the naming simulation takes a worst case.
+
+    ``GRID_BINS`` bins spread over the recording, each as recorded and with the heating
+    direction reversed (``Effect.reverse_heating``): an effect's error in corrected
+    acceleration (about its mean over the session: the pose constant takes that) there.
+    """
+
+    def __init__(self, c, count):
+        n = len(c)
+        idx = set(np.linspace(0, n - 1, min(count, n)).round().astype(int))
+        idx |= {int(np.argmin(c.temp)), int(np.argmax(c.temp))}
+        self.c, self.rows_index = c, np.array(sorted(idx))
+
+    def matrix(self, effect, full=True):
+        """Return the error per unit parameter in corrected acceleration, (2 D, 3, k), mg."""
+        c = self.c
+        cols = effect.columns(c.accel, c.temp, c.time, c.gravity)
+        mean = cols.mean(axis=0)
+        rows = np.concatenate([cols[self.rows_index],
+                               effect.reverse_heating(cols)[self.rows_index]]) - mean
+        return 1000.0 / c.gravity * np.einsum('ij,njk->nik', c.T_inv, rows)
 
 
 def _rank(jac):
@@ -442,9 +512,28 @@ def diagnose_still(rec, reference, reference_c, band_width_c, gravity=9.80665,
     result.below_threshold = [cand for cand in result.candidates
                               if cand['significant'] and not cand['large_enough']]
     result.vetoed = list(selection.vetoed)
-    result.naming_power = None
+    if power:
+        _naming_power(result)
     result.held_out = held_out_legs(result)
     return result
+
+
+def _naming_power(result):
+    """Simulate how large each tested effect not named must be to be named (``power``)."""
+    from .power import calibrate_power
+    names = [n for n in result.tested if n not in result.missing_effects]
+    if not names or result.final_set is None:
+        result.naming_power = {}
+        return
+    coloured = bool(result.window_noise.coloured)
+    open_gap = result.noise_source == 'between windows' or not result.statistically_explained
+    excess = result.excess_scatter() if open_gap else 0.0
+    scale = max(1.0, result.gap_after ** 2) if coloured and not open_gap else 1.0
+    try:
+        result.naming_power = calibrate_power(result.session_fits, result.final_set, names,
+                                              coloured=coloured, excess=excess, scale=scale)
+    except (ValueError, np.linalg.LinAlgError):
+        result.naming_power = None
 
 
 def held_out_legs(result):

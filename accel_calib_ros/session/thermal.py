@@ -116,7 +116,7 @@ def fit_thermal(samples, reference, settings=None):
             out.diagnosis = diagnose_still(rec, reference, out.reference_c,
                                            settings.band_width_c, settings.gravity,
                                            min_effect_mg=settings.min_effect_mg,
-                                           samples=samples)
+                                           samples=samples, power=False)
         except (CalibrationError, ValueError, np.linalg.LinAlgError) as err:
             out.warnings.append(f'hysteresis not checked: {err}')
         else:
