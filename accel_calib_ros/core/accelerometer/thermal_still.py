@@ -191,6 +191,15 @@ def still_bins(samples, bin_s=BIN_S, min_span_c=MIN_SPAN_C, gap_s=None):
 
 def _check_temperature(t, temp, rate, gap_s):
     """Refuse a reported temperature that jumps or scatters too much to place offsets."""
+    # Scatter about a local straight line: the second difference of neighbours.
+    if len(temp) >= 3:
+        second = temp[2:] - 2.0 * temp[1:-1] + temp[:-2]
+        noise = 1.4826 * float(np.median(np.abs(second - np.median(second)))) / np.sqrt(6.0)
+        if noise > MAX_TEMP_NOISE_C:
+            raise CalibrationError(
+                f'the temperature reading scatters by about ±{noise:.2f} °C from sample to '
+                f'sample (more than {MAX_TEMP_NOISE_C:g} °C): average it over a few samples, '
+                "or record the IMU's own temperature sensor")
     dt = np.diff(t)
     steps = np.abs(np.diff(temp))
     steps[dt > gap_s] = 0.0
@@ -201,15 +210,6 @@ def _check_temperature(t, temp, rate, gap_s):
             f"{t[k + 1]:.1f} s): record the IMU's own temperature (0.003 °C steps) at least "
             f'once a second, not a coarse or intermittent thermometer (jumps up to '
             f'{MAX_TEMP_STEP_C:g} °C are taken)')
-    # Scatter about a local straight line: the second difference of neighbours.
-    if len(temp) >= 3:
-        second = temp[2:] - 2.0 * temp[1:-1] + temp[:-2]
-        noise = 1.4826 * float(np.median(np.abs(second - np.median(second)))) / np.sqrt(6.0)
-        if noise > MAX_TEMP_NOISE_C:
-            raise CalibrationError(
-                f'the temperature reading scatters by about ±{noise:.2f} °C from sample to '
-                f'sample (more than {MAX_TEMP_NOISE_C:g} °C): average it over a few samples, '
-                "or record the IMU's own temperature sensor")
 
 
 def _knocks(bins, full):
