@@ -154,7 +154,8 @@ def cv_better(cv_with, cv_without):
 
 def cv_tied(cv_a, cv_b):
     """Tell whether two held-out chi² per fold (K,) differ by less than twice their paired SE."""
-    d = np.asarray(cv_a, float) - np.asarray(cv_b, float)
+    with np.errstate(invalid='ignore'):
+        d = np.asarray(cv_a, float) - np.asarray(cv_b, float)
     if not np.all(np.isfinite(d)):
         return True
     se = np.sqrt(len(d)) * float(np.std(d, ddof=1)) if len(d) > 1 else 0.0

@@ -195,7 +195,7 @@ class StillFits(SessionFits):
         n = len(c)
         self.n = 3 * n
         self.veto = veto or (lambda name, setfit: '')
-        self.folds = [np.concatenate([f + i * n for i in range(3)]) for f in make_folds(c.time)]
+        self.folds = [np.concatenate([f + i * n for i in range(3)]) for f in still_folds(c)]
         self.candidates = []
         self._grid = None
         self.cache = {}
@@ -314,6 +314,30 @@ class StillFits(SessionFits):
         return out[:top]
 
 
+FOLD_BLOCK_S = 60.0
+"""Held-out folds of a still recording are made of stretches this long (at least 3 bins)."""
+
+
+def still_folds(c):
+    """
+    Return the held-out folds of a still recording: short stretches dealt round the folds.
+
+    Blocks of consecutive bins (``FOLD_BLOCK_S``) go to the ``CV_FOLDS`` folds in turn, so
+    every fold spans the whole temperature range: a node of the offset curve is never
+    held out whole (blocked folds in time would hold out one temperature band of a ramp),
+    while the bins of a fold are not each other's neighbours.
+    """
+    from .criterion import CV_FOLDS
+    n = len(c)
+    order = np.argsort(c.time, kind='stable')
+    spacing = float(np.median(np.diff(c.time[order]))) if n > 1 else 1.0
+    size = max(3, int(round(FOLD_BLOCK_S / max(spacing, 1e-9))))
+    if n < CV_FOLDS * size:
+        return make_folds(c.time)
+    block = np.arange(n) // size
+    return [np.sort(order[block % CV_FOLDS == k]) for k in range(CV_FOLDS)]
+
+
 GRID_BINS = 60
 """Bins (evenly spread, the extremes of temperature and time among them) of the naming
 simulation's worst case; each is also taken run the other way."""
@@ -403,16 +427,15 @@ class StillResult(DiagnoseResult):
         """
         Return the heating/cooling term a thermal fit carries (``Hysteresis``), or None.
 
-        The first named effect of ``HYSTERESIS_EFFECTS``, with its time constant: its
-        per-axis coefficients are refitted in the gradient form (the offset per °C of
-        θ - θ_lag) by the thermal fit itself.
+        The first named effect of ``HYSTERESIS_EFFECTS``: the thermal fit carries it in the
+        gradient form (the offset per °C of θ - θ_lag), its time constant and per-axis
+        coefficients fitted to the data in that form (a die lag named here is carried as
+        the gradient that imitates it best).
         """
         from ..core.accelerometer.thermal_lag import Hysteresis
-        final = self.final_set
         for step in self.steps:
-            if step['effect'] in HYSTERESIS_EFFECTS and final is not None:
-                effect = final.bound[step['effect']]
-                return Hysteresis(float(effect.tau), np.zeros(3), step['effect'])
+            if step['effect'] in HYSTERESIS_EFFECTS:
+                return Hysteresis(None, np.zeros(3), step['effect'])
         return None
 
     held_out: dict = None

@@ -79,7 +79,8 @@ class ChamberProgramme:
 
 def thermal_unit(rng, offsets_mg=(16.0, 15.0, 55.0), span_c=(-18.0, 74.0),
                  hysteresis_mg=0.0, rate_c_min=3.0, gradient_tau_s=45.0, temp_ref=25.0,
-                 noise_mg=0.4, rate_hz=100.0, gyro_tempco_dps_c=0.02, curvature=0.3):
+                 noise_mg=0.4, rate_hz=100.0, gyro_tempco_dps_c=0.02, curvature=0.3,
+                 bumps=0.0):
     """
     Draw a sensor whose offsets move along a smooth curve over a temperature span.
 
@@ -93,6 +94,8 @@ def thermal_unit(rng, offsets_mg=(16.0, 15.0, 55.0), span_c=(-18.0, 74.0),
     °C at most per axis.
 
     :param noise_mg: per-sample noise, mg (the chamber recordings: 0.3-0.5 mg).
+    :param bumps: with it, three smooth bumps per axis (widths 10-25 °C) of up to ``bumps``
+        of the total each are added: a curve no cubic holds (``SensorModel.bias_curve``).
     :returns: SensorModel (its ``temp_ref`` is ``temp_ref``).
     """
     low, high = span_c
@@ -117,8 +120,20 @@ def thermal_unit(rng, offsets_mg=(16.0, 15.0, 55.0), span_c=(-18.0, 74.0),
     T = np.diag(1.0 + rng.uniform(-1, 1, 3) * 0.03)
     T[np.triu_indices(3, 1)] = rng.uniform(-1, 1, 3) * 0.02
     bias = np.array([0.06, 0.06, 0.08]) * G0 * rng.uniform(-1, 1, 3)
+    curve = None
+    if bumps > 0:
+        grid = np.linspace(low - 30.0, high + 30.0, 400)
+        centres = rng.uniform(low, high, (3, 3))
+        widths = rng.uniform(10.0, 25.0, (3, 3))
+        sizes = rng.uniform(-1.0, 1.0, (3, 3)) * bumps * np.abs(total)[:, None]
+        shape = np.exp(-0.5 * ((grid[None, None, :] - centres[..., None])
+                               / widths[..., None]) ** 2)
+        offsets = np.einsum('ab,abn->na', sizes, shape)
+        ref = np.array([np.interp(temp_ref, grid, offsets[:, i]) for i in range(3)])
+        curve = (grid, offsets - ref)
     return SensorModel(
-        T=T, bias=bias, noise_std=np.full(3, noise_mg * 1e-3 * G0), lsb=MPU9250_LSB,
+        T=T, bias=bias, bias_curve=curve, noise_std=np.full(3, noise_mg * 1e-3 * G0),
+        lsb=MPU9250_LSB,
         bias_tempco=lin, bias_tempco_quadratic=quad, bias_tempco_cubic=cub,
         bias_gradient=k, gradient_tau_s=gradient_tau_s, temp_ref=temp_ref,
         gyro_bias=np.radians(rng.uniform(-3.0, 3.0, 3)),

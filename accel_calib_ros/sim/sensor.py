@@ -87,6 +87,9 @@ class SensorModel:
     :param gyro_bias_tempco: (3,) gyroscope offset drift, rad/s per °C of die temperature.
     :param temp_noise_std: noise of the reported temperature, °C (0: none).
     :param temp_lsb: step of the reported temperature, °C (0: none; MPU-9250 1/333.87).
+    :param bias_curve: (temps (M,) °C, offsets (M, 3) m/s²): an offset against the die
+        temperature beyond the polynomial terms, linear between its points (a curve no
+        polynomial holds), or None.
     """
 
     T: np.ndarray = field(default_factory=lambda: np.eye(3))
@@ -113,6 +116,7 @@ class SensorModel:
     gyro_bias_tempco: np.ndarray = field(default_factory=lambda: np.zeros(3))
     temp_noise_std: float = 0.0
     temp_lsb: float = 0.0
+    bias_curve: Optional[tuple] = None
 
     def __post_init__(self):
         self.T = np.asarray(self.T, dtype=float).reshape(3, 3)
@@ -149,6 +153,11 @@ class SensorModel:
         if np.any(self.bias_tempco_quadratic) or np.any(self.bias_tempco_cubic):
             raw = raw + (dtheta[:, None] ** 2 * self.bias_tempco_quadratic
                          + dtheta[:, None] ** 3 * self.bias_tempco_cubic)
+        if self.bias_curve is not None:
+            temps, offsets = self.bias_curve
+            theta = dtheta + self.temp_ref
+            raw = raw + np.column_stack([np.interp(theta, temps, offsets[:, i])
+                                         for i in range(3)])
         raw = raw + time[:, None] * self.bias_drift
         return raw
 

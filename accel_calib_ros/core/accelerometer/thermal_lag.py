@@ -178,7 +178,7 @@ class Hysteresis:
     """
     The heating/cooling term of a thermal calibration: ``offset_i += k_i (θ - θ_lag)``.
 
-    :param tau_s: time constant of the lag, s.
+    :param tau_s: time constant of the lag, s (None before a fit chooses it).
     :param offset_per_c: (3,) k, m/s² per °C of gradient θ - θ_lag (0 on an axis the data
         did not show it on). On a steady ramp at r °C/s the gradient is about tau r, so the
         offset is about k tau r: positive k reads higher while heating.
@@ -190,7 +190,7 @@ class Hysteresis:
     effect: str = 'temperature_rate'
 
     def __post_init__(self):
-        self.tau_s = float(self.tau_s)
+        self.tau_s = None if self.tau_s is None else float(self.tau_s)
         self.offset_per_c = np.asarray(self.offset_per_c, float).reshape(3).copy()
 
     def offset(self, time, temp, gap_s=GAP_S):

@@ -186,6 +186,39 @@ def gradient_of(rec, tau_s):
                                               bins.t_mid)) if len(bins.t_mid) > 1 else GAP_S))
 
 
+def hysteresis_tau(rec, reference_c, band_width_c, grid=12):
+    """
+    Return the time constant of the gradient form that fits a still recording best, s.
+
+    The residual sum of squares of the linear fit with the gradient column, summed over the
+    axes (each weighted by its scatter without it), over time constants from twice the
+    bins' spacing (at least 5 s) to a quarter of the recording (at most 30 min), then
+    refined between the best one's neighbours.
+    """
+    from scipy import optimize
+    t = rec.bins.t_mid
+    spacing = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    low = max(2.0 * spacing, 5.0)
+    taus = np.geomspace(low, max(min(0.25 * float(np.ptp(t)), 1800.0), 2.0 * low), grid)
+    y = rec.bins.mean
+    plain = StillDesign(rec, reference_c, band_width_c)
+    scale = np.array([np.std(y[:, i] - plain.matrix(False) @ plain.solve(y[:, i], None, False))
+                      for i in range(3)])
+    scale = np.where(scale > 0, scale, 1.0)
+
+    def cost(log_tau):
+        design = StillDesign(rec, reference_c, band_width_c, Hysteresis(np.exp(log_tau)))
+        X = design.matrix()
+        return sum(float(np.sum(design.weight * (y[:, i] - X @ design.solve(y[:, i])) ** 2))
+                   / scale[i] ** 2 for i in range(3))
+    costs = [cost(np.log(tau)) for tau in taus]
+    k = int(np.argmin(costs))
+    low, high = np.log(taus[max(k - 1, 0)]), np.log(taus[min(k + 1, len(taus) - 1)])
+    found = optimize.minimize_scalar(cost, bounds=(low, high), method='bounded',
+                                     options={'xatol': 0.005})
+    return float(np.exp(found.x)) if found.fun < costs[k] else float(taus[k])
+
+
 def fit_still(rec, reference_c, band_width_c=10.0, hysteresis=None, gyro_reference=None):
     """
     Fit offset tables (and gyro bias tables) against temperature to a still recording.
@@ -194,13 +227,16 @@ def fit_still(rec, reference_c, band_width_c=10.0, hysteresis=None, gyro_referen
     :param reference_c: the reference calibration's temperature, °C: the tables are zero
         there.
     :param band_width_c: band width of the nodes, °C.
-    :param hysteresis: a Hysteresis whose ``tau_s`` is used (its coefficients are fitted
-        here, and kept only on the axes where they exceed ``HYSTERESIS_T`` standard
-        errors), or None.
+    :param hysteresis: a Hysteresis whose ``tau_s`` is used (None: the best, found by
+        ``hysteresis_tau``; its coefficients are fitted here, and kept only on the axes where
+        they exceed ``HYSTERESIS_T`` standard errors), or None for no hysteresis term.
     :param gyro_reference: (3,) the reference calibration's gyro bias at ``reference_c``,
         rad/s, or None (the recording's own level is used).
     :returns: StillFit.
     """
+    if hysteresis is not None and hysteresis.tau_s is None:
+        hysteresis = Hysteresis(hysteresis_tau(rec, reference_c, band_width_c),
+                                effect=hysteresis.effect)
     design = StillDesign(rec, reference_c, band_width_c, hysteresis)
     bins = rec.bins
     n_pose, n_node = design.pose_cols.shape[1], len(design.nodes)
