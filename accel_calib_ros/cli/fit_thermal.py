@@ -59,10 +59,18 @@ def _summary(args, samples, outcome, used):
         'model_gap': None if gap is None else gap.brief(),
         'predicted_accuracy_by_temperature': _accuracy_rows(outcome),
         'residual_rms_m_s2': np.sqrt(np.mean(fit.residuals ** 2, axis=0)).tolist(),
-        'legs': fit.legs, 'T': cal.T.tolist(), 'bias': cal.bias.tolist(),
+        'legs': fit.legs, 'accuracy_covers': _covers(fit.legs),
+        'T': cal.T.tolist(), 'bias': cal.bias.tolist(),
         'gyro_bias_by_band': [None if b.gyro_bias is None else b.gyro_bias.tolist()
                               for b in table.bands],
         'input_units': used, 'warnings': outcome.warnings}
+
+
+def _covers(legs):
+    """Say which directions of the temperature's change the predicted accuracy covers."""
+    heating, cooling = legs.get('heating_bins', 0) >= 10, legs.get('cooling_bins', 0) >= 10
+    return ('heating and cooling' if heating and cooling else 'heating' if heating
+            else 'cooling' if cooling else 'a steady temperature')
 
 
 def _print(summary, outcome):

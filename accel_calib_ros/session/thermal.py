@@ -125,6 +125,21 @@ def fit_thermal(samples, reference, settings=None):
                     reference.gyro_bias)
     out.fit = fit
     out.calibration = extended(reference, fit, settings.source)
+    heating, cooling = fit.legs.get('heating_bins', 0), fit.legs.get('cooling_bins', 0)
+    if min(heating, cooling) < 10 <= max(heating, cooling):
+        seen, unseen = ('heats', 'cooling') if heating > cooling else ('cools', 'heating')
+        if fit.table.hysteresis is not None:
+            out.warnings.append(
+                f'the recording only {seen}: the hysteresis term, fitted from how the rate '
+                f'varied, predicts {unseen}, which was not seen; record a {unseen} leg to '
+                'check it (a chamber cycle, or a cool-down after the warm-up)')
+        else:
+            out.warnings.append(
+                f'the recording only {seen}: how the sensor reads while {unseen} is unknown '
+                '(real parts differ by several mg between heating and cooling); the '
+                f'predicted accuracy covers {"heating" if heating > cooling else "cooling"} '
+                f'only: record a {unseen} leg too (a chamber cycle, or a cool-down after the '
+                'warm-up)')
     low, high = rec.temp_range_c
     if not low <= out.reference_c <= high:
         out.warnings.append(
