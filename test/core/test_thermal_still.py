@@ -189,3 +189,22 @@ def test_calibration_corrects_with_the_hysteresis_across_pieces(chamber):
     worst = np.argmax(np.abs(sensor.bias_gradient))
     assert np.sqrt(np.mean(err[:, worst] ** 2)) < 0.4 * np.sqrt(np.mean(plain_err[:, worst]
                                                                        ** 2))
+
+
+def test_a_live_stream_binned_row_by_row_gives_the_recording_s_bins(chamber):
+    from accel_calib_ros.core.accelerometer.thermal_still import StillBinner
+    session, _, _ = chamber
+    s = session.samples
+    t = s.t.copy()
+    t[len(t) // 2:] += 120.0                        # a pause: a new stretch
+    rows = Samples(t, s.accel, s.temp, s.gyro)
+    rec = still_bins(rows, bin_s=10.0)
+    binner = StillBinner(bin_s=10.0)
+    for row in zip(rows.t, rows.accel, rows.temp, rows.gyro):
+        binner.add(*row)
+    binner.add(t[-1] + 0.1, [np.nan, 0.0, 0.0], 20.0)        # counted, not binned
+    live = binner.recording()
+    np.testing.assert_array_equal(live.bins.mean, rec.bins.mean)
+    np.testing.assert_array_equal(live.segment, rec.segment)
+    np.testing.assert_array_equal(live.pose, rec.pose)
+    assert live.skipped_rows == 1 and live.segment.max() == 1
