@@ -5,7 +5,7 @@ Big recordings: wall time and peak memory of simulate, fit and apply on long CSV
 For each row count, ``accel-calib simulate`` writes a 24-pose CSV of about that many
 rows (100 Hz, temperature and gyro columns), ``fit`` calibrates it and ``apply``
 corrects it; each runs as its own process and its peak resident memory is read from the
-kernel (``wait4``). Target (issue 11): apply and simulate of 10⁷ rows in <= 500 MiB.
+kernel (``wait4``). Target: apply and simulate of 10⁷ rows in <= 500 MiB.
 
 Prints figures, asserts nothing.
 Usage: python bench/bench_bigfile.py [--rows 1e6,1e7] [--dir DIR] [--bag]

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """
-Benchmark: the accel_calibration node keeps up while it calibrates (issue 26).
+Benchmark: the accel_calibration node keeps up while it calibrates.
 
 A whole-IMU session (accelerometer and gyroscope at ``--rate`` Hz, magnetometer at
 100 Hz, temperature at 10 Hz) is simulated and replayed in real time, from pre-serialised

@@ -9,7 +9,7 @@ output, depth 100). This process subscribes to both outputs and measures deliver
 (received / published), latency (receive time - stamp) percentiles and the resident
 memory of both consumers (VmRSS at the end of the input), their CPU time while the
 input streams (user + system, /proc), and prints the ratios
-issue 11 asks for (RSS <= 1.2x the relay, p50 latency <= the relay's, 100 % delivered)::
+the targets (RSS <= 1.2x the relay, p50 latency <= the relay's, 100 % delivered)::
 
     python bench/bench_correction.py [--rate 1000] [--duration 10]
 """

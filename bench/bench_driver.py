@@ -12,7 +12,7 @@ random non-zero byte, for both frame versions: garbage frames published per 10�
 published frame that was not sent) and intact frames lost. bench/bench_reliability.py has
 the other kinds of damage (drops, insertions, bursts).
 
-The clock sweep (issue 26 item 6): a board whose µs clock is -5000..+5000 ppm off streams
+The clock sweep: a board whose µs clock is -5000..+5000 ppm off streams
 at 1 kHz through the simulated USB-serial transport (sim/transport.py: 1 ms USB frames, or
 an Uno's 64-byte packets, reader latency and stalls) for ``--clock-seconds``; per row the
 share of stamps within 1 ms of the true sample time (plus the transport's smallest delay,
@@ -20,7 +20,7 @@ which no host can see), the largest error, stamps not after their predecessor
 (backwards), steps under 45 % of a period (bunched), the range of the steps over the
 period, and the rate error the mapping found::
 
-The link rows (issue 26 item 7): the virtual device (sim/device.py) on a pty, read by
+The link rows: the virtual device (sim/device.py) on a pty, read by
 the ROS-free SerialLink in this process, with a 2.5 s UART stall, an unplug and replug, a
 version-1 re-lock after a 1030 ms stall, and a device clock 2000 ppm fast; per row the
 samples the device never sent (its ``--report``) against those the link counted lost,

@@ -1,5 +1,5 @@
 """
-Benchmark of the field monitor (issue 24): rates and ratios for each claim, many seeds.
+Benchmark of the field monitor: rates and ratios for each claim, many seeds.
 
 Every row runs the monitor the correction node runs (``core.monitor.FieldMonitor``) on
 the corrected stream of a simulated robot (``sim.field_stream``): an MPU-9250-like sensor

@@ -1,5 +1,5 @@
 """
-The README's "Real recordings" table: the three public recordings in test/data/peers.
+The "Real recordings" table of docs/benchmarks.md: the three public recordings in test/data/peers.
 
 For each recording and method: the windows found, accepted or refused and the words of
 the refusal, the fitted numbers beside the peer's own, and the prediction against

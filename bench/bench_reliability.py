@@ -1,5 +1,5 @@
 """
-Benchmark: reliability under adversarial input (issue 8), measured, not assumed.
+Benchmark: reliability under adversarial input, measured, not assumed.
 
 Tries, and prints one table row each:
 
@@ -22,7 +22,7 @@ Columns of the first table: inputs tried, crashes (a traceback, "internal error"
 status outside 0/1/2, or an exception other than InputError from the loader), non-finite
 outputs (NaN or infinity in a written file, in JSON, or in a corrected sample from an
 accepted calibration), inputs destroyed (an input file whose bytes changed). Exit status 1
-when any count of this package's own rows is not 0, or when a version-2 row at the issue's
+when any count of this package's own rows is not 0, or when a version-2 row at the target
 damage levels published other garbage or lost an intact frame::
 
     python bench/bench_reliability.py [--frames 1000000] [--fuzz 100] [--mutants 400]
@@ -300,7 +300,7 @@ def print_frame_table(n, results):
     return ok
 
 
-# -- issue 16: paths, history and signals (own rows, own table) ----------------------------
+# -- paths, history and signals (own rows, own table) ---------------------------------------------
 
 FILES_HEAD = ('input class', 'inputs tried', 'crashes', 'inputs destroyed',
               'foreign files changed', 'temp files left')
@@ -454,7 +454,7 @@ def bench_signals(folder, trials, seed=16):
 
 
 def files_rows(signal_trials):
-    """Measure the issue-16 rows; print their table; return True when every count is 0."""
+    """Measure the path, history and signal rows; print their table; True when every count is 0."""
     import shutil
     folder = tempfile.mkdtemp(prefix='bench16-')
     os.chmod(folder, 0o755)                    # the unprivileged runner must reach it
@@ -486,7 +486,7 @@ def main():
     ap.add_argument('--mutants', type=int, default=400,
                     help='damaged calibration files tried (default %(default)s)')
     ap.add_argument('--signals', type=int, default=12,
-                    help='signals sent to apply mid-run, issue 16 (default %(default)s)')
+                    help='signals sent to apply mid-run (default %(default)s)')
     args = ap.parse_args()
     rng = np.random.default_rng(8)
     ok = True

@@ -7,8 +7,8 @@ command of the package must pay at least. Measured in one run, interleaved (floo
 fit, --help, ... repeated), so machine load hits all of them alike; each figure is the
 median of ``--runs`` runs. Also lists the heavy modules each command imports.
 
-Targets (issues 11, 20, 27): fit on a 24-window accelerometer session <= 1.5x the floor;
---help <= 1.2x. Since fit calibrates all three sensors of a session (issue 19), the work of
+Targets: fit on a 24-window accelerometer session <= 1.5x the floor;
+--help <= 1.2x. Since fit calibrates all three sensors of a session, the work of
 the fit itself is shown apart: ``fit --help`` is the start-up of the fit command (its
 imports and parser), the accelerometer-only row is fit without gyro columns, the
 24-window row has the gyro columns of ``simulate`` (so fit also calibrates the gyroscope)

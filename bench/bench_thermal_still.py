@@ -7,7 +7,7 @@ A unit held still in a chamber that cools, heats and cools again (-18 .. 74 °C,
 against temperature (16, 15 and 55 mg over the range, along a curve with bumps no cubic
 holds) and a heating/cooling hysteresis of 0 (null), 5, 10 or 15 mg on its worst axis (a
 temperature gradient across the package, smoothed over 30-60 s). ``fit --thermal
---calibration`` (``session.thermal.fit_thermal``) on the heating leg and on the second
+--calibration`` (``session.temperature.fit_thermal``) on the heating leg and on the second
 cooling leg; the other legs corrected and compared with a cubic in the reported temperature
 fitted on the same leg (PX4's model): held-out RMS per axis, mg, after a constant per leg
 (the fitted leg's level). Also how often the hysteresis term is carried (on nulls: false).
@@ -19,7 +19,7 @@ import time
 
 from accel_calib_ros.core.calibration import Calibration
 from accel_calib_ros.core.samples import Samples
-from accel_calib_ros.session.thermal import fit_thermal
+from accel_calib_ros.session.temperature import fit_thermal
 from accel_calib_ros.sim.chamber import ChamberProgramme, simulate_still, thermal_unit
 import numpy as np
 

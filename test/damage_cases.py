@@ -1,5 +1,5 @@
 """
-Damaged and foreign history databases, as users hit them (issue 16).
+Damaged and foreign history databases, as users hit them.
 
 Shared by test/dataio/test_history_integrity.py and bench/bench_reliability.py (the "history"
 row): :func:`damage` turns a copy of a good history database into one of ``DAMAGE``.

@@ -1,5 +1,5 @@
 """
-Adversarial output paths for the CLI, and the invariant they must keep (issue 16).
+Adversarial output paths for the CLI, and the invariant they must keep.
 
 Shared by test/dataio/test_paths.py (Hypothesis as root, a fixed set as an unprivileged user)
 and bench/bench_reliability.py (the "paths" row). A case is an output path of one kind

@@ -15,8 +15,6 @@ import sys
 from ..dataio.formats import MAX_MESSAGE, message_line  # noqa: F401 - one line, capped
 
 
-MAX_WEIGHT_S = 5.0
-"""Window weights are capped at this many seconds of samples (see StaticWindows.weights)."""
 MAX_POSES = 100_000
 """Most poses a simulated session may have."""
 
@@ -67,12 +65,9 @@ def add_data_args(p):
     add_time_unit_arg(p)
 
 
-UNITS = ('m/s2', 'g', 'counts')
-"""Units of ax, ay, az a recording may be in (as ``dataio.units.UNITS``)."""
-
-
 def add_unit_args(p):
     """Add ``--units`` and the raw-count options (``dataio.units`` converts)."""
+    from ..dataio.units import UNITS
     g = p.add_argument_group('unit of ax, ay, az (files written hold m/s²)')
     g.add_argument('--units', choices=UNITS, default=None,
                    help='m/s2 (default), g (standard gravity) or counts (raw ADC codes: '
@@ -124,6 +119,7 @@ def to_si(samples, args, check=True):
 def add_window_args(p):
     """Add the static-window detector options to parser ``p``."""
     from ..core.windows import DEFAULTS
+    from ..session.settings import DEFAULT_SETTINGS
     g = p.add_argument_group('static windows')
     g.add_argument('--min-window-s', type=ranged(0.01, 3600.0),
                    default=DEFAULTS['min_duration_s'],
@@ -132,7 +128,7 @@ def add_window_args(p):
     g.add_argument('--threshold-factor', type=ranged(1.0, 1e3),
                    default=DEFAULTS['threshold_factor'],
                    help='still when moving std < factor x noise floor (default %(default)s)')
-    g.add_argument('--max-weight-s', type=ranged(1e-3, 1e6), default=MAX_WEIGHT_S,
+    g.add_argument('--max-weight-s', type=ranged(1e-3, 1e6), default=DEFAULT_SETTINGS.max_weight_s,
                    help='cap of a window weight, seconds of samples (default %(default)s)')
 
 
@@ -277,7 +273,7 @@ def check_not_empty(args):
             raise UsageError(f'accel-calib: {option} is an empty name; give a file name')
 
 
-# -- the output border (issue 16) ----------------------------------------------------------
+# -- the output border ----------------------------------------------------------------------
 
 MAX_REFUSAL = 500
 """Longest refusal line (``cannot calibrate: ...``): its own words, the poses to add."""

@@ -13,7 +13,7 @@ REPORT_FILES = ('report.md', 'gap.png', 'probes.png')
 def report_files(folder, still=False):
     """Return the names the report would write in ``folder`` that may exist already."""
     if still:
-        from ..modelgap.report_still import REPORT_FILES as STILL_FILES
+        from ..modelgap.still_pose_report import REPORT_FILES as STILL_FILES
         return list(STILL_FILES)
     names = list(REPORT_FILES)
     if os.path.isdir(folder):
@@ -26,7 +26,7 @@ def _write_report(result, folder, still=False):
     """Write the report; a folder made for it goes again when writing fails."""
     from ..dataio.atomic import make_parents
     if still:
-        from ..modelgap.report_still import write_still_report as write_report
+        from ..modelgap.still_pose_report import write_still_report as write_report
     else:
         from ..modelgap.report import write_report
     made = make_parents(folder)
@@ -95,12 +95,12 @@ def run(args, out):
 
 
 def _diagnose_still(args):
-    """Run the workflow on one still pose against a calibration (``modelgap.still``)."""
+    """Run the workflow on one still pose against a calibration (``modelgap.still_pose``)."""
     from .common import recorded_units
     from ..core.accelerometer.thermal_still import still_bins
     from ..dataio.calibration_file import load_calibration
-    from ..modelgap.still import diagnose_still
-    from ..session.thermal import reference_temperature, STILL_BAND_WIDTH_C
+    from ..modelgap.still_pose_run import diagnose_still
+    from ..session.temperature import reference_temperature, STILL_BAND_WIDTH_C
     cal = load_calibration(args.calibration)
     recorded_units(args, cal, 'diagnose --calibration')
     samples = load_data(args)

@@ -2,9 +2,9 @@
 ``accel-calib fit``: a calibration from a recording's static windows (or its samples).
 
 The recording's windows are found here (``core.windows``, outliers dropped; with
-``--history`` joined to the sensor's kept windows); the fit, its acceptance and the
-file are the session floor's, as for the node and ``guide``
-(``session.accept.fit_and_accept``, ``session.persist``).
+``--history`` joined to the sensor's kept windows); everything after them (the fit, its
+acceptance, the file, the history) is the session floor's ``finish_session``, as for the
+node and ``guide``; a file that cannot be written is an error of the arguments (exit 2).
 """
 
 import os
@@ -16,15 +16,15 @@ import numpy as np
 from .common import (add_data_args, add_window_args, check_output, GRAVITY, load_data,
                      ranged, sensor_id, STDOUT, UsageError)
 from ..core.accelerometer.fit import METHODS
-from ..core.constants import G0
 from ..core.errors import CalibrationError
 from ..core.windows import DEFAULTS, detect_static_windows
 
 
 def add_arguments(p):
     """Add the options of ``fit`` to its parser."""
+    from ..session.settings import DEFAULT_SETTINGS as S
     add_data_args(p)
-    p.add_argument('--method', choices=METHODS, default='ml',
+    p.add_argument('--method', choices=METHODS, default=S.method,
                    help='ml: maximum likelihood (Sun & Xu); ml-bc: ML with bootstrap bias '
                         'correction; gn: 6-parameter Gauss-Newton (Gui Yi); ellipsoid: '
                         'algebraic LS (default ml)')
@@ -49,14 +49,14 @@ def add_arguments(p):
     g.add_argument('--hysteresis', choices=('auto', 'off'), default='auto',
                    help='auto: carry the heating/cooling hysteresis term when the model-gap '
                         'selection names it (default); off: never')
-    p.add_argument('--gravity', type=GRAVITY, default=G0,
+    p.add_argument('--gravity', type=GRAVITY, default=S.gravity,
                    help='local gravity magnitude, m/s² (default %(default)s)')
-    p.add_argument('--max-predicted-error', type=ranged(1e-9, 1e3), default=0.02,
-                   metavar='M_S2',
+    p.add_argument('--max-predicted-error', type=ranged(1e-9, 1e3),
+                   default=S.max_predicted_error, metavar='M_S2',
                    help='refuse a fit whose predicted accuracy (RMS error at 1 g over all '
                         'orientations) is worse than this, m/s² (default %(default)s)')
-    p.add_argument('--max-residual-ratio', type=ranged(1.0, 1e6), default=10.0,
-                   metavar='RATIO',
+    p.add_argument('--max-residual-ratio', type=ranged(1.0, 1e6),
+                   default=S.max_residual_ratio, metavar='RATIO',
                    help='refuse a fit whose gravity-norm residual RMS exceeds this many times '
                         'the error expected of a window mean from its noise (the sensor moved, '
                         'or the model does not fit it; default %(default)s, as the node)')
@@ -80,16 +80,16 @@ def add_arguments(p):
 
 def add_imu_arguments(p):
     """Add the options of the gyroscope and magnetometer parts (interface.md §9, §10)."""
-    from ..core.outcomes import DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR
+    from ..session.settings import DEFAULT_SETTINGS as S
     g = p.add_argument_group('gyroscope and magnetometer (fitted whenever the data have '
                              'gx gy gz / mx my mz)')
-    g.add_argument('--max-gyro-error', type=ranged(1e-9, 1.0), default=DEFAULT_MAX_GYRO_ERROR,
+    g.add_argument('--max-gyro-error', type=ranged(1e-9, 1.0), default=S.max_gyro_error,
                    metavar='FRACTION',
                    help='store the gyroscope scale/misalignment only when its predicted '
                         'accuracy (RMS relative rate error over all directions) is at most '
                         'this (default %(default)s = 1 %%); otherwise only that part is '
                         'left out')
-    g.add_argument('--max-mag-error', type=ranged(1e-9, 1e3), default=DEFAULT_MAX_MAG_ERROR,
+    g.add_argument('--max-mag-error', type=ranged(1e-9, 1e3), default=S.max_mag_error,
                    metavar='UT',
                    help='store the magnetometer calibration only when its predicted accuracy '
                         '(RMS field error over all directions) is at most this, µT (default '
@@ -117,34 +117,35 @@ def history_observations(args, samples, obs):
     Return the observations of this recording's windows joined to the sensor's history.
 
     Nothing is written here: the history gets this session only if the fit is accepted
-    (:func:`record_fit`), so a refused or failed fit leaves it as it was.
+    (``session.finish.finish_session``), so a refused or failed fit leaves it as it was.
 
     :param args: parsed ``fit`` arguments (``history`` not None).
     :param samples: the loaded recording.
     :param obs: this recording's observations (static windows, outliers already dropped:
-        see ``_observations``); changed in place (``obs.session`` keeps this recording's
-        windows for :func:`record_fit`).
-    :return: ``obs`` with readings (N, 3), weights (N,), temps (N,), count N and gyro means
+        see ``_observations``); changed in place.
+    :return: (``obs`` with readings (N, 3), weights (N,), temps (N,), count N and gyro means
         (N, 3) rad/s (NaN rows where a session had no gyro) over every kept window of the
-        sensor and this recording's (a window kept already counts once).
+        sensor and this recording's (a window kept already counts once), the
+        ``session.finish.HistoryTarget`` that records this recording's windows).
     """
     if args.mode != 'windows':
         raise UsageError('accel-calib: fit --history works on static windows (--mode windows)')
     if not args.sensor:
         raise UsageError('accel-calib: fit --history needs --sensor NAME (whose history it '
                          'is)')
-    from ..dataio.history import History, new_session_id
+    from ..dataio.history import History
+    from ..session.finish import HistoryTarget
+    from ..session.persist import window_times
     path = _history_path(args)
     check_output(path, args.data, args.output, what='--history')
     t = samples.t
-    if len(t) and t[0] > 1e9:            # stamps are already Unix times (a rosbag)
-        when = obs.t_mid
-    else:                                # a CSV from 0: assume it was just recorded
-        when = time.time() - (t[-1] - obs.t_mid) if len(t) else obs.t_mid
+    target = HistoryTarget(path, args.sensor, now=time.time(),
+                           clock_end=float(t[-1]) if len(t) else None)
+    when = window_times(obs.t_mid, t_end=target.clock_end, now=target.now)
     gyro = np.full((obs.count, 3), np.nan) if obs.gyro is None else obs.gyro
     temps = np.full(obs.count, np.nan) if obs.temps is None else obs.temps
-    new = {'mean': obs.readings, 'temp': temps, 'weight': obs.weights,
-           'time_s': np.broadcast_to(np.asarray(when, float), (obs.count,)), 'gyro_mean': gyro}
+    new = {'mean': obs.readings, 'temp': temps, 'weight': obs.weights, 'time_s': when,
+           'gyro_mean': gyro}
     kept = {'mean': np.zeros((0, 3)), 'temp': np.zeros(0), 'weight': np.zeros(0),
             'time_s': np.zeros(0), 'gyro_mean': np.zeros((0, 3))}
     if os.path.exists(path) and not (os.path.isfile(path) and os.path.getsize(path) == 0):
@@ -154,9 +155,6 @@ def history_observations(args, samples, obs):
     old = set(zip(*(kept['mean'].T), kept['weight']))
     fresh = np.array([(tuple(m) + (w,)) not in old for m, w in zip(new['mean'], new['weight'])],
                      bool).reshape(-1)
-    obs.session = {'id': new_session_id(), 'path': path, 'when': new['time_s'],
-                   'means': obs.readings, 'temps': obs.temps, 'weights': obs.weights,
-                   'gyro': obs.gyro}
     union = {k: np.concatenate([kept[k], new[k][fresh]]) for k in new}
     order = np.argsort(union['time_s'], kind='stable')
     print(f'accel-calib: history {path}: {obs.count} windows from this recording, '
@@ -165,27 +163,14 @@ def history_observations(args, samples, obs):
     obs.readings, obs.weights = union['mean'][order], union['weight'][order]
     obs.temps, obs.gyro = union['temp'][order], union['gyro_mean'][order]
     obs.count = len(order)
-    return obs
+    return obs, target
 
 
-def record_fit(args, cal, obs):
-    """
-    Record an accepted fit in the sensor's history: its windows and calibration, one session.
-
-    :param args: parsed ``fit`` arguments.
-    :param cal: the accepted Calibration.
-    :param obs: the observations of :func:`history_observations` (``obs.session`` holds
-        this recording's windows).
-    :return: dict db, session, windows_added.
-    """
-    from ..session.persist import record_history
-    s = obs.session
-    done = record_history(s['path'], args.sensor, cal, s['means'], s['temps'], s['weights'],
-                          s['when'], s['gyro'], session_id=s['id'])
-    print(f'accel-calib: history {s["path"]}: session {s["id"]} recorded for sensor '
-          f'{args.sensor} ({done["windows_added"]} new windows and the calibration)',
+def report_history(done, sensor):
+    """Say on stderr what the history recorded (``done``: ``Outcome.history``)."""
+    print(f'accel-calib: history {done["db"]}: session {done["session"]} recorded for sensor '
+          f'{sensor} ({done["windows_added"]} new windows and the calibration)',
           file=sys.stderr)
-    return done
 
 
 class _Observations:
@@ -200,7 +185,7 @@ def _observations(samples, args):
     if getattr(args, 'mode', 'windows') == 'samples':
         return _Observations(readings=samples.accel, weights=None, temps=samples.temp,
                              noise=None, count=len(samples), gyro=None, dropped=[],
-                             mean_count=1.0, low_passed=False)
+                             mean_count=1.0, low_passed=False, windows=None, kept=None)
     windows = detect_static_windows(samples, min_duration_s=args.min_window_s,
                                     threshold_factor=args.threshold_factor)
     if len(windows) == 0:
@@ -227,7 +212,7 @@ def _observations(samples, args):
                          noise=windows.noise_std, count=len(windows),
                          gyro=windows.gyro_mean, dropped=dropped, t_mid=windows.t_mid,
                          mean_count=float(np.mean(windows.count)) if len(windows) else 1.0,
-                         low_passed=windows.low_passed, windows=detected)
+                         low_passed=windows.low_passed, windows=detected, kept=windows)
 
 
 def _band_dict(band):
@@ -316,25 +301,28 @@ def settings(args):
     """Return the session settings of the ``fit`` options."""
     from .common import unit_options
     from ..dataio.units import input_units
-    from ..session.accept import CLI, Settings
+    from ..session.settings import DEFAULT_SETTINGS as S, FIT
     units = unit_options(args)
-    return Settings(method=args.method, gravity=args.gravity,
-                    thermal='on' if args.thermal else 'off',
-                    band_width_c=args.band_width or 10.0,
-                    max_predicted_error=args.max_predicted_error,
-                    max_residual_ratio=getattr(args, 'max_residual_ratio', 10.0),
-                    refuse_unphysical=True, allow_unconverged=args.force,
-                    max_gyro_error=args.max_gyro_error, max_mag_error=args.max_mag_error,
-                    field_uT=args.field, sensor_id=getattr(args, 'sensor', None),
-                    input_units=input_units(units['units'], units['counts_per_g'],
-                                            units['counts_offset']),
-                    source=os.path.basename(args.data), words=CLI)
+    return S.replace(
+        method=args.method, gravity=args.gravity, thermal='on' if args.thermal else 'off',
+        band_width_c=args.band_width or S.band_width_c,
+        max_predicted_error=args.max_predicted_error,
+        max_residual_ratio=getattr(args, 'max_residual_ratio', S.max_residual_ratio),
+        max_weight_s=getattr(args, 'max_weight_s', S.max_weight_s),
+        allow_unconverged=args.force, max_gyro_error=args.max_gyro_error,
+        max_mag_error=args.max_mag_error, field_uT=args.field,
+        sensor_id=getattr(args, 'sensor', None),
+        input_units=input_units(units['units'], units['counts_per_g'], units['counts_offset']),
+        source=os.path.basename(args.data), words=FIT)
 
 
 def run(args, out):
     """Run ``accel-calib fit``; return the exit status."""
-    from ..session.accept import fit_and_accept, Outcome, RecordingImu
-    from ..session.windows import Observations
+    from ..core.errors import InputError
+    from ..session.accept import RecordingImu, refused
+    from ..session.finish import finish_session
+    from ..session.settings import FIT
+    from ..session.windows import Observations, WindowSet
     if args.calibration is not None:
         if not args.thermal:
             raise UsageError('accel-calib: fit --calibration is the calibration a thermal fit '
@@ -351,16 +339,22 @@ def run(args, out):
     imu = RecordingImu(samples)
     try:
         obs = _observations(samples, args)
+        target = None
         if getattr(args, 'history', None) is not None:     # per-sensor history
-            obs = history_observations(args, samples, obs)
+            obs, target = history_observations(args, samples, obs)
     except CalibrationError as err:
-        outcome = Outcome(refusal=str(err))
-        outcome.gyro, outcome.magnetometer = imu.not_fitted()
+        outcome = refused(str(err), imu, words=FIT, limit=args.max_predicted_error)
     else:
-        imu.windows = getattr(obs, 'windows', None)
-        outcome = fit_and_accept(Observations(obs.readings, obs.weights, obs.temps, obs.noise,
-                                              obs.gyro), settings(args), imu)
-    if outcome.refusal is not None and args.thermal:
+        imu.windows = obs.windows
+        outcome = finish_session(
+            None if obs.kept is None else WindowSet.from_static(obs.kept, samples.t),
+            settings(args), imu,
+            obs=Observations(obs.readings, obs.weights, obs.temps, obs.noise, obs.gyro),
+            rate_hz=samples.rate_hz, history=target,
+            output=args.output if args.output != STDOUT else None)
+    if outcome.cause is not None and not outcome.accepted:  # the arguments', not the data's
+        raise InputError(outcome.refusal)
+    if outcome.refusal is not None and not outcome.accepted and args.thermal:
         from .fit_thermal import one_pose_hint
         outcome.refusal += one_pose_hint(args, samples)
     cal = outcome.calibration
@@ -393,15 +387,15 @@ def run(args, out):
         print(f'accel-calib: warning: {warning}', file=sys.stderr)
     if refusal is None:
         warn_imu((outcome.gyro, outcome.magnetometer))
+    if outcome.notes:           # saved, but the history could not take it
+        raise InputError('; '.join(outcome.notes))
     if refusal is None and args.output == STDOUT:
         from ..dataio.calibration_file import calibration_yaml
         sys.stdout.write(calibration_yaml(cal))
         sys.stdout.flush()
-    elif refusal is None and args.output:
-        from ..session.persist import save
-        save(outcome, args.output)
-    if refusal is None and getattr(args, 'history', None) is not None:
-        extra['history'] = record_fit(args, cal, obs)
+    if outcome.history is not None:
+        extra['history'] = outcome.history
+        report_history(outcome.history, args.sensor)
     summary = _fit_summary(cal, extra)
     summary.update(_imu_summary(outcome))
     if args.json:

@@ -3,7 +3,7 @@
 
 DATA is a still recording whose temperature sweeps (a warm-up after power-on, a chamber
 cycle), at anything from a logger's 1 Hz to 1 kHz; CALIB an existing calibration (its T
-and bias). The fit (``session.thermal.fit_thermal``) adds offset tables against
+and bias). The fit (``session.temperature.fit_thermal``) adds offset tables against
 temperature, the gyroscope bias against temperature and, when the model-gap selection
 names it, the heating/cooling hysteresis; the output is CALIB plus that part, written
 atomically (``-o`` may be CALIB itself: it is replaced only by an accepted fit).
@@ -19,7 +19,7 @@ from ..core.errors import CalibrationError
 
 
 def _settings(args, source):
-    from ..session.thermal import STILL_BAND_WIDTH_C, ThermalSettings
+    from ..session.temperature import STILL_BAND_WIDTH_C, ThermalSettings
     return ThermalSettings(band_width_c=args.band_width or STILL_BAND_WIDTH_C,
                            min_span_c=args.min_span, hysteresis=args.hysteresis,
                            gravity=args.gravity, source=source)
@@ -114,7 +114,7 @@ def _print(summary, outcome):
 def run(args, out):
     """Run the one-pose thermal fit; return the exit status."""
     from ..dataio.calibration_file import calibration_yaml, load_calibration, save_calibration
-    from ..session.thermal import fit_thermal
+    from ..session.temperature import fit_thermal
     if args.output == STDOUT and args.json:
         raise UsageError('accel-calib: fit -o - writes the YAML to standard output: leave out '
                          '--json')

@@ -1,21 +1,22 @@
 """
 ``accel-calib guide``: a calibration walked through live in the terminal.
 
-It reads a serial port (§1 frames), a ROS topic or a simulated sensor held by a simulated
-person, and shows where gravity points now against the pose asked for, how long to keep
-holding, the windows collected and the predicted accuracy against the target; it draws
-the board in the next pose, says "enough", fits and writes the calibration atomically
-(the same acceptance rule as ``fit`` and the node).
+It reads a serial port (§1 frames, through ``dataio.link`` as the driver does), a ROS
+topic or a simulated sensor held by a simulated person, and shows where gravity points
+now against the pose asked for, how long to keep holding, the windows collected and the
+predicted accuracy against the target; it draws the board in the next pose, says
+"enough", and ends the session as ``fit`` and the node do (``session.finish``: the same
+acceptance, the file written atomically, the history).
 
-Only the standard library and numpy are imported here at module level; rich, pyserial
-and rclpy are imported when the guide needs them.
+Only the standard library and numpy (and the session floor's settings) are imported here
+at module level; rich, the serial link and rclpy are imported when the guide needs them.
 
 When the source gives the angular rate (serial frames, an Imu topic with it, the
 simulation) the screen says which rotation axis the moves have not turned about yet, and
-with a magnetometer (``--mag-topic``, the simulation) how much of the sphere of field
-directions it has seen and where to turn; at the end the gyroscope's scale and
-misalignment and the magnetometer are fitted and stored beside the accelerometer when
-they pass their limits (as ``fit``), else reported.
+with a magnetometer (version-2 frames, ``--mag-topic``, the simulation) how much of the
+sphere of field directions it has seen and where to turn; at the end the gyroscope's
+scale and misalignment and the magnetometer are fitted and stored beside the
+accelerometer when they pass their limits (as ``fit``), else reported.
 """
 
 import math
@@ -30,8 +31,8 @@ from .common import (check_output, GRAVITY, non_negative, positive, positive_upt
 from .guide_session import GuideSession
 from .guide_sources import RosSource, SerialSource, SimulatedSource
 from ..core.advice import DEFAULT_TARGET, MIN_WINDOWS, pose_name
-from ..core.constants import G0
 from ..core.errors import InputError
+from ..session.settings import DEFAULT_SETTINGS, GUIDED_METHODS
 
 
 def add_arguments(p):
@@ -45,12 +46,12 @@ def add_arguments(p):
     p.add_argument('-o', '--output', help='calibration YAML to write (default: the file of '
                                           'the nodes, $ROS_HOME/accel_calib_ros/'
                                           'calibration.yaml)')
-    p.add_argument('--method', choices=('ml', 'gn'), default='ml')
+    p.add_argument('--method', choices=GUIDED_METHODS, default=DEFAULT_SETTINGS.method)
     p.add_argument('--target', type=positive, default=DEFAULT_TARGET,
                    help='predicted accuracy that is enough, m/s² (default %(default)s)')
-    p.add_argument('--gravity', type=GRAVITY, default=G0)
-    p.add_argument('--max-predicted-error', type=ranged(1e-9, 1e3), default=0.02,
-                   metavar='M_S2',
+    p.add_argument('--gravity', type=GRAVITY, default=DEFAULT_SETTINGS.gravity)
+    p.add_argument('--max-predicted-error', type=ranged(1e-9, 1e3),
+                   default=DEFAULT_SETTINGS.max_predicted_error, metavar='M_S2',
                    help='refuse to write a calibration whose predicted accuracy is worse '
                         'than this, m/s² (default %(default)s, as fit and the node)')
     p.add_argument('--hold', type=positive, default=2.0,
@@ -64,11 +65,17 @@ def add_arguments(p):
                         '"simulated-SEED")')
     p.add_argument('--timeout', type=positive, default=None,
                    help='give up after this many wall-clock seconds')
-    g = p.add_argument_group('serial port')
+    from ..dataio.wire.chips import DEFAULT_CHIP
+    g = p.add_argument_group('serial port (read as the driver reads it: the chip and its '
+                             "ranges from the firmware's info frame)")
     g.add_argument('--baud', type=int, default=1000000)
     g.add_argument('--ascii', action='store_true', help='ASCII line format instead of frames')
-    g.add_argument('--accel-range', type=int, default=2, choices=(2, 4, 8, 16))
-    g.add_argument('--gyro-range', type=int, default=250, choices=(250, 500, 1000, 2000))
+    g.add_argument('--accel-range', type=int, default=2,
+                   choices=tuple(DEFAULT_CHIP.accel_lsb_per_g),
+                   help='accelerometer full scale, ±g, without an info frame (default 2)')
+    g.add_argument('--gyro-range', type=int, default=250,
+                   choices=tuple(DEFAULT_CHIP.gyro_lsb_per_dps),
+                   help='gyroscope full scale, ±°/s, without an info frame (default 250)')
     g = p.add_argument_group('ROS topic')
     g.add_argument('--temp-topic', help='sensor_msgs/Temperature topic (optional)')
     g.add_argument('--mag-topic', help='sensor_msgs/MagneticField topic, tesla (optional)')
@@ -378,42 +385,36 @@ def _rate(stamp_lists):
 
 
 def _finish(session, output, label, console, history=None, sensor=None,
-            max_predicted_error=0.02):
+            max_predicted_error=DEFAULT_SETTINGS.max_predicted_error):
     """
-    Fit, judge and write the calibration (``session``: the acceptance of ``fit`` and the node).
+    End the session as every front door does: fit, judge, write the calibration, history.
 
-    :return: the exit status (1 when the fit is refused: nothing written).
+    :return: the exit status: 1 when the fit is refused (nothing written), 2 when a file
+        could not be written (the calibration, or the history after it).
     """
-    from ..session.accept import CLI, Settings, SI_UNITS
-    from ..session.persist import record_history, save, window_times
-    outcome = session.finish(Settings(max_predicted_error=max_predicted_error,
-                                      source=f'accel-calib guide ({label})', sensor_id=sensor,
-                                      input_units=SI_UNITS, words=CLI))
-    if outcome.calibration is None:
-        console.print(f'cannot calibrate: {outcome.refusal}')
-        return 1
+    from ..session.finish import HistoryTarget
+    from ..session.settings import GUIDE, SI_UNITS
+    settings = DEFAULT_SETTINGS.replace(
+        max_predicted_error=max_predicted_error, source=f'accel-calib guide ({label})',
+        sensor_id=sensor, input_units=SI_UNITS, words=GUIDE)
+    outcome = session.finish(settings, output,
+                             HistoryTarget(history, sensor) if history else None)
     if not outcome.accepted:
         console.print(f'cannot calibrate: {outcome.refusal}; nothing written')
-        return 1
-    cal = outcome.calibration
-    save(outcome, output)
+        return 2 if outcome.cause else 1
     for o in (outcome.gyro, outcome.magnetometer):
         if o.status != 'absent':
             console.print(o.line())
-    for line in outcome.carried:
+    for line in outcome.carried + outcome.warnings + outcome.notes:
         console.print(line)
-    adv = session.advice
-    console.print(f'enough: predicted accuracy {adv.predicted_accuracy:.4f} m/s² ≤ target '
-                  f'{adv.target:.4f} m/s² after {len(session.windows)} poses')
+    console.print(f'predicted accuracy {outcome.predicted_accuracy:.4f} m/s² (target '
+                  f'{session.target:.4f} m/s²) after {len(session.windows)} poses')
     console.print(f'wrote calibration {output}')
-    if history:             # one session: its windows and calibration, one transaction
-        windows = session.window_set()
-        done = record_history(history, sensor, cal, windows.mean, windows.temp,
-                              session.arrays()[1], window_times(windows.t_mid),
-                              windows=len(windows))
-        console.print(f'history {history}: {len(windows)} windows and the calibration kept '
-                      f'for sensor {sensor} (session {done["session"]})')
-    return 0
+    if outcome.history is not None:
+        console.print(f'history {outcome.history["db"]}: {outcome.history["windows_added"]} '
+                      f'windows and the calibration kept for sensor {sensor} (session '
+                      f'{outcome.history["session"]})')
+    return 2 if outcome.cause else 0
 
 
 def _write_record(path, recorded):

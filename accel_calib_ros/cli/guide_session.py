@@ -3,11 +3,11 @@ The state of a guided session: holds, windows, advice, and the fit at the end.
 
 :class:`HoldTracker` decides sample by sample when a pose is held still and for how long;
 :class:`GuideSession` keeps the windows, the advice (``core.advice``) and the pose to ask
-for next, and fits the calibration when it is enough (``session.accept.fit_and_accept``,
-the acceptance of ``fit`` and the node). When the source gives the angular
-rate and the magnetic field, the session also keeps them (``core.collector``) and says
-after each window which rotation axis the moves have not turned about yet and how much
-of the sphere of field directions the magnetometer has seen (``core.outcomes``).
+for next, and ends the session when it is enough (``session.finish.finish_session``: the
+fit, acceptance, file and history of ``fit`` and the node). When the source gives the
+angular rate and the magnetic field, the session also keeps them (``core.collector``) and
+says after each window which rotation axis the moves have not turned about yet and how
+much of the sphere of field directions the magnetometer has seen (``core.outcomes``).
 """
 
 from collections import deque
@@ -18,6 +18,7 @@ import numpy as np
 from ..core.advice import advise, coverage, DEFAULT_TARGET
 from ..core.collector import ImuCollector
 from ..core.constants import G0
+from ..session.settings import DEFAULT_SETTINGS
 from ..session.windows import Window, WindowSet
 
 
@@ -138,8 +139,8 @@ class GuideSession:
     :param target: predicted accuracy that is enough, m/s².
     """
 
-    def __init__(self, rate_hz, method='ml', target=DEFAULT_TARGET, gravity=G0, hold_s=2.0,
-                 max_weight_s=5.0):
+    def __init__(self, rate_hz, method=DEFAULT_SETTINGS.method, target=DEFAULT_TARGET, gravity=G0,
+                 hold_s=2.0, max_weight_s=DEFAULT_SETTINGS.max_weight_s):
         self.method = method
         self.target = target
         self.gravity = gravity
@@ -166,12 +167,6 @@ class GuideSession:
         """Return the windows captured so far as a WindowSet."""
         return WindowSet.from_windows(self.windows)
 
-    def arrays(self):
-        """Return (means (N, 3), weights (N,), temps (N,), noise (3,)) of the windows."""
-        obs = self.window_set().observations(self.max_weight_s)
-        noise = obs.noise if obs.noise is not None else np.full(3, self.tracker.noise_floor)
-        return obs.readings, obs.weights, obs.temps, noise
-
     def update(self, t, accel, temp, gyro=None, mag=None):
         """
         Feed samples; return the windows captured among them.
@@ -191,8 +186,9 @@ class GuideSession:
                 new.append(window)
         self.samples += len(t)
         if new:
-            means, weights, _, noise = self.arrays()
-            self.advice = advise(means, weights, noise, self.gravity, self.method, self.target)
+            obs = self.observations()
+            self.advice = advise(obs.readings, obs.weights, obs.noise, self.gravity,
+                                 self.method, self.target)
             self._imu_advice()
         return new
 
@@ -216,19 +212,6 @@ class GuideSession:
             step = max(1, len(self.imu.mag) // 2000)
             self.imu_status['magnetometer'] = field_advice(self.imu.mag[::step, 1:4])
 
-    def solve_imu(self, cal, max_gyro_error, max_mag_error):
-        """
-        Fit the gyroscope and magnetometer beside the accelerometer ``cal``; store what passes.
-
-        :returns: (gyro, magnetometer) ``core.outcomes.SensorOutcome``.
-        """
-        from ..core.outcomes import store
-        from ..session.accept import CollectedImu, Settings
-        gyro, mag = CollectedImu(self.imu, self.window_set()).solve(
-            cal, Settings(max_gyro_error=max_gyro_error, max_mag_error=max_mag_error))
-        store(cal, gyro, mag)
-        return gyro, mag
-
     def status(self):
         """Return what the screen shows, as a dict."""
         now = self.tracker.current()
@@ -238,20 +221,12 @@ class GuideSession:
         angle = None
         if target is not None:
             angle = float(np.degrees(np.arccos(np.clip(direction @ target, -1, 1))))
-        means = self.arrays()[0]
+        means = self.window_set().mean
         distinct = coverage(means / np.linalg.norm(means, axis=1, keepdims=True))[1] \
             if len(means) else 0
         return {'direction': direction, 'norm_g': norm / self.gravity, 'angle_deg': angle,
                 'state': self.tracker.state, 'progress': self.tracker.progress,
                 'windows': len(self.windows), 'distinct': distinct, 'advice': self.advice}
-
-    def fit(self, source=''):
-        """Fit the calibration to the windows (no acceptance); CalibrationError when it cannot."""
-        from ..core.accelerometer.fit import calibrate
-        obs = self.observations()
-        return calibrate(obs.readings, gravity=self.gravity, method=self.method,
-                         weights=obs.weights, temps=obs.temps, noise_std=obs.noise,
-                         source=source, gyro_means=obs.gyro_means)
 
     def observations(self):
         """Return the session's Observations (the tracker's noise floor before any window)."""
@@ -260,14 +235,20 @@ class GuideSession:
             obs.noise = np.full(3, self.tracker.noise_floor)
         return obs
 
-    def finish(self, settings):
+    def finish(self, settings, output=None, history=None):
         """
-        Fit, judge and fit the other sensors as every front door does.
+        End the session as every front door does (``session.finish.finish_session``).
 
-        :param settings: ``session.accept.Settings`` (method and gravity are the session's).
+        :param settings: ``session.settings.Settings`` (method, gravity and the weight cap
+            are the session's).
+        :param output: the calibration file to write, or None.
+        :param history: a ``session.finish.HistoryTarget``, or None.
         :return: ``session.accept.Outcome``.
         """
-        from ..session.accept import CollectedImu, fit_and_accept
-        settings = settings.replace(method=self.method, gravity=self.gravity)
-        imu = CollectedImu(self.imu, self.window_set())
-        return fit_and_accept(self.observations(), settings, imu)
+        from ..session.accept import CollectedImu
+        from ..session.finish import finish_session
+        settings = settings.replace(method=self.method, gravity=self.gravity,
+                                    max_weight_s=self.max_weight_s)
+        windows = self.window_set()
+        return finish_session(windows, settings, CollectedImu(self.imu, windows),
+                              obs=self.observations(), output=output, history=history)

@@ -4,7 +4,8 @@ Where the guide's samples come from: a serial port, a ROS topic or a simulated p
 Each source has ``label``, ``read(session)`` -> (t (N,) s, accel (N, 3) m/s², temp (N,) °C)
 and ``close()``. After a read, ``last_gyro`` holds the N angular rates (rad/s) when the
 source has them (else None) and ``last_mag`` the magnetometer samples read (times (M,)
-s, field (M, 3) µT) when it has one (else None). pyserial and rclpy are imported only by
+s, field (M, 3) µT) when it has one (else None). The serial port is read through
+``dataio.link`` (the driver's link); the link (pyserial) and rclpy are imported only by
 the source that needs them.
 """
 
@@ -149,51 +150,103 @@ def _rotation(phi):
 
 
 class SerialSource:
-    """MPU9250 frames (interface §1) or ASCII lines from a serial port."""
+    """
+    The board's frames (interface.md §1, §1b) or ASCII lines, read by ``dataio.link``.
+
+    The link is the driver's (``dataio.link.SerialLink``): it reopens the port with back-off,
+    asks for the firmware's info frame, maps the device clock onto host time and skips and
+    counts corrupt bytes. The info frame names the chip (``dataio.wire.chips``: its
+    temperature formula, ranges and sensitivities) and the ranges in use; without one
+    (ASCII lines, an old firmware) ``accel_range`` and ``gyro_range`` apply. Magnetometer
+    samples (frame version 2) are converted with the info frame's sensitivity adjustment.
+
+    :raises InputError: the port cannot be opened.
+    """
 
     last_mag = None
 
-    def __init__(self, port, baud=1000000, ascii_lines=False, accel_range=2, gyro_range=250):
-        try:
-            import serial
-        except ImportError:
-            raise InputError('pyserial is not installed (pip install pyserial)') from None
-        from ..dataio.wire import AsciiLineParser, Converter, FrameParser
+    def __init__(self, port, baud=1000000, ascii_lines=False, accel_range=2, gyro_range=250,
+                 wait_s=2.0):
+        import threading
+        from ..dataio.link import READ_TIMEOUT_S, SerialLink
+        from ..dataio.link.serial_link import open_serial, PORT_ERRORS
+        from ..dataio.wire import Converter, MagConverter
         self.label = f'serial {port} at {baud} baud'
         try:
-            self.port = serial.Serial(port, baud, timeout=0.05)
-        except (serial.SerialException, OSError, ValueError) as err:
+            first = [open_serial(port, baud, READ_TIMEOUT_S)]   # one clear line when it cannot
+        except PORT_ERRORS as err:
             raise InputError(f'cannot open {port}: {err}') from None
-        self.parser = AsciiLineParser() if ascii_lines else FrameParser()
+
+        def open_port(path, rate, timeout):     # the port opened above first, then anew
+            return first.pop() if first else open_serial(path, rate, timeout)
+
+        self.ranges = (accel_range, gyro_range)
         self.converter = Converter(accel_range, gyro_range)
-        self._last_us, self._t = None, 0.0
+        self.mag_converter = MagConverter()
+        self.info = None
+        self._lock = threading.Lock()
+        self._got = []                  # (stamps, accel, temp, gyro, mag) per delivery
+        self.last_gyro = None
+        self.link = SerialLink(port, baud, 'ascii' if ascii_lines else 'binary', 'device',
+                               open_port=open_port, on_samples=self._on_samples,
+                               on_info=self._on_info, on_connect=self._on_connect)
+        self.link.start()
+        deadline = time.monotonic() + wait_s
+        while self.link.opened_at is None and time.monotonic() < deadline:
+            time.sleep(0.005)
+
+    def _on_connect(self):
+        """Forget the info frame: the device may have restarted or been swapped."""
+        self._on_info(None)
+
+    def _on_info(self, info):
+        """Take the chip and the ranges of the firmware's info frame (the reader thread)."""
+        from ..dataio.wire import chip_of, Converter, DEFAULT_CHIP, MAG_AK8963, MagConverter
+        chip = (info is not None and chip_of(info.who_am_i)) or DEFAULT_CHIP
+        accel, gyro = self.ranges
+        if info is not None and info.status == 0 and info.accel_range_g in \
+                chip.accel_lsb_per_g and info.gyro_range_dps in chip.gyro_lsb_per_dps:
+            accel, gyro = info.accel_range_g, info.gyro_range_dps
+        mag = MagConverter(info.asa, chip.magnetometer or DEFAULT_CHIP.magnetometer) \
+            if info is not None and info.mag_status == MAG_AK8963 else MagConverter()
+        with self._lock:
+            self.info = info
+            self.converter = Converter(accel, gyro, chip=chip)
+            self.mag_converter = mag
+
+    def _on_samples(self, frames, stamps):
+        """Convert the link's frames (the reader thread); :meth:`read` takes them."""
+        with self._lock:
+            to_si, to_tesla = self.converter.to_si, self.mag_converter.to_tesla
+        accel, temp, gyro, mag = [], [], [], []
+        for frame, stamp in zip(frames, stamps):
+            a, c, w = to_si(frame.counts)
+            accel.append(a)
+            temp.append(c)
+            gyro.append(w)
+            field = None if frame.mag is None else to_tesla(frame.mag)
+            if field is not None:
+                mag.append((stamp, [v * 1e6 for v in field]))
+        with self._lock:
+            self._got.append((list(stamps), accel, temp, gyro, mag))
 
     def read(self, session):
-        """Return the samples (t, accel, temp) received since the last call."""
-        import serial
-        try:
-            data = self.port.read(max(1, self.port.in_waiting))
-        except (serial.SerialException, OSError) as err:
-            raise InputError(f'serial port: {err}') from None
-        t, acc, temp, gyro = [], [], [], []
-        for frame in self.parser.feed(data):
-            a, c, w = self.converter.to_si(frame.counts)
-            gyro.append(w)
-            if frame.t_us is None:
-                self._t = time.monotonic()
-            else:
-                if self._last_us is not None:
-                    self._t += ((frame.t_us - self._last_us) % 2 ** 32) * 1e-6
-                self._last_us = frame.t_us
-            t.append(self._t)
-            acc.append(a)
-            temp.append(c)
-        self.last_gyro = np.array(gyro, float).reshape(-1, 3)
-        return np.array(t), np.array(acc).reshape(-1, 3), np.array(temp)
+        """Return the samples (t, accel, temp) received since the last call; sleeps a little."""
+        with self._lock:
+            got, self._got = self._got, []
+        if not got:
+            time.sleep(0.02)
+        t = np.array([v for g in got for v in g[0]], float)
+        self.last_gyro = np.array([v for g in got for v in g[3]], float).reshape(-1, 3)
+        mags = [m for g in got for m in g[4]]
+        self.last_mag = (np.array([m[0] for m in mags], float),
+                         np.array([m[1] for m in mags], float).reshape(-1, 3)) if mags else None
+        return (t, np.array([v for g in got for v in g[1]], float).reshape(-1, 3),
+                np.array([v for g in got for v in g[2]], float))
 
     def close(self):
-        """Close the port."""
-        self.port.close()
+        """Stop the link (the port is closed)."""
+        self.link.stop()
 
 
 class RosSource:

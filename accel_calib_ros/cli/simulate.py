@@ -28,10 +28,9 @@ def add_arguments(p):
     p.add_argument('--temp', type=TEMPERATURE, nargs='+', default=[25.0], metavar='C',
                    help='temperature, °C: one value, or START END for a ramp')
     p.add_argument('--effects', default='',
-                   help='comma-separated extra effects: scale_nonlinearity, '
-                        'temperature_bias, temperature_scale, bias_drift, temperature_lag '
-                        '(the offset follows a die temperature 1-5 min behind the recorded '
-                        'one), bias_random_walk')
+                   help='comma-separated extra effects: ' + ', '.join(
+                       name + (f' ({effect.sim_note})' if effect.sim_note else '')
+                       for name, effect in _switchable().items()))
     p.add_argument('--orthogonal', action='store_true',
                    help='no non-orthogonality (diagonal T, the GN model)')
     p.add_argument('--gravity', type=GRAVITY, default=G0, help='gravity, m/s²')
@@ -40,7 +39,7 @@ def add_arguments(p):
     p.add_argument('--noise-from', metavar='ALLAN.json',
                    help='per-sample accel (and gyro) noise from "accel-calib allan --json" '
                         '(white_sample_std, kept at its noise density at --rate)')
-    g = p.add_argument_group('gyroscope and magnetometer (issue 19; off by default)')
+    g = p.add_argument_group('gyroscope and magnetometer (off by default)')
     g.add_argument('--gyro-errors', action='store_true',
                    help='gyroscope scale ±3 %% and cross-axis ±2 %% errors (MPU-9250 '
                         'datasheet); the rates still integrate to the simulated turns')
@@ -98,6 +97,19 @@ def _chamber(args, rng):
     direction = np.zeros(3)
     direction[axis] = -1.0 if args.up.startswith('-') else 1.0
     return sensor, programme, direction
+
+
+def _switchable():
+    """Return the library effects a simulated sensor gets by name: {name: Effect}."""
+    from ..modelgap.effects import EFFECTS
+    return {name: effect for name, effect in EFFECTS.items()
+            if effect.sensor_range is not None}
+
+
+def _known():
+    """Return the library effects ``--effects`` takes (also those always on, such as T's)."""
+    from ..modelgap.effects import EFFECTS
+    return [name for name, effect in EFFECTS.items() if effect.datasheet is not None]
 
 
 def _imu_sensor(sensor, args):
@@ -162,8 +174,7 @@ def run(args, out):
     if args.chamber:
         return _run_chamber(args, out, rng)
     effects = [e.strip() for e in args.effects.split(',') if e.strip()]
-    known = ('scale_nonlinearity', 'temperature_bias', 'temperature_scale', 'bias_drift',
-             'nonorthogonality', 'temperature_lag', 'bias_random_walk')
+    known = _known()
     for e in effects:
         if e not in known:
             raise UsageError(f'unknown effect {e!r}; choose from {", ".join(known)}')
@@ -260,7 +271,12 @@ def sensor_to_dict(sensor, gravity):
                 'gradient_tau_s': float(sensor.gradient_tau_s)}
                if np.any(sensor.bias_gradient) else {}),
             **({'gyro_bias_tempco_rad_s_per_c': sensor.gyro_bias_tempco.tolist()}
-               if np.any(sensor.gyro_bias_tempco) else {})}
+               if np.any(sensor.gyro_bias_tempco) else {}),
+            **({'library_effects': {effect.name: {'params': np.asarray(params, float).tolist(),
+                                                  'param_names': list(effect.param_names),
+                                                  'unit': effect.unit}
+                                    for effect, params in sensor.library_effects}}
+               if sensor.library_effects else {})}
 
 
 def _run_chamber(args, out, rng):

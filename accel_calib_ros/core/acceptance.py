@@ -10,17 +10,19 @@ would fix it, from the fit's own information (:mod:`core.information`, the sourc
 ``advise``): the poses that would lower the predicted accuracy most, never a direction
 already held (within 25°); or, when the cause is the cross-axis terms a ``gn`` fit
 cannot model, that, and the method that models them.
-Checks that only make sense in one front end (the node's residual-to-noise ratio, the
-CLI's ``--force`` wording) stay there. numpy only, ROS-free.
+The words of a front door (its option or parameter names, its hints) come in as arguments
+(``session.settings.Words``). numpy only, ROS-free.
 """
 
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
-from .record import fresh, record
+from .calibration import MAX_BIAS_G, MAX_CROSS_AXIS, MAX_SCALE_ERROR
 
 
-@record
+@dataclass
 class Review:
     """
     Verdict on a fitted calibration.
@@ -33,12 +35,12 @@ class Review:
     """
 
     accepted: bool
-    reasons: list = fresh(list)
-    warnings: list = fresh(list)
-    poses: list = fresh(list)
+    reasons: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
+    poses: list = field(default_factory=list)
     converged: bool = True
     accuracy_ok: bool = True
-    physical_problems: list = fresh(list)
+    physical_problems: list = field(default_factory=list)
     cross_axis_cause: bool = False
 
     @property
@@ -75,7 +77,7 @@ def estimation_accuracy(cal):
     return float(np.sqrt(max(acc ** 2 - cross.accuracy ** 2, 0.0)))
 
 
-def cross_axis_words(cross, ml_hint='use --method ml'):
+def cross_axis_words(cross, ml_hint='fit with the ml method'):
     """
     Say what the cross-axis terms a ``gn`` fit holds at zero cost, and what to do.
 
@@ -96,14 +98,14 @@ def cross_axis_words(cross, ml_hint='use --method ml'):
             f'{ml_hint} (it models them)')
 
 
-def accuracy_reason(acc, limit, poses, limit_name='max_predicted_error', unit='m/s²'):
+def accuracy_reason(acc, limit, poses, limit_name='', unit='m/s²'):
     """
     One-line reason a predicted accuracy ``acc`` is not good enough, naming poses to add.
 
     :param acc: predicted accuracy, m/s² (None or non-finite: unknown).
     :param limit: acceptance limit, m/s².
     :param poses: from :func:`poses_that_help`.
-    :param limit_name: how the caller spells the limit (option or parameter name).
+    :param limit_name: how the caller spells the limit (option or parameter name; '': none).
     :param unit: spelling of m/s² in the message.
     """
     value = ('unknown' if acc is None or not np.isfinite(acc)
@@ -120,13 +122,17 @@ def accuracy_reason(acc, limit, poses, limit_name='max_predicted_error', unit='m
                 + ' still a few seconds and record again')
     else:
         hint = '; hold more distinct poses (each axis up and down, and tilted) and record again'
-    return (f'predicted accuracy {value} is worse than the limit {limit:g} {unit} '
-            f'({limit_name}){hint}')
+    return (f'predicted accuracy {value} is worse than the limit {limit:g} {unit}'
+            f'{_named(limit_name)}{hint}')
+
+
+def _named(name):
+    return f' ({name})' if name else ''
 
 
 def review(cal, max_predicted_error, allow_unconverged=False, refuse_unphysical=False,
-           max_scale_error=0.2, max_cross_axis=0.1, max_bias_g=0.25,
-           limit_name='max_predicted_error', unit='m/s²', ml_hint='use --method ml'):
+           max_scale_error=MAX_SCALE_ERROR, max_cross_axis=MAX_CROSS_AXIS,
+           max_bias_g=MAX_BIAS_G, limit_name='', unit='m/s²', ml_hint='fit with the ml method'):
     """
     Decide whether a fitted calibration may be used.
 
@@ -138,7 +144,7 @@ def review(cal, max_predicted_error, allow_unconverged=False, refuse_unphysical=
     :param max_scale_error: limit on ``|T_ii - 1|``.
     :param max_cross_axis: limit on ``|T_ij| / T_ii``.
     :param max_bias_g: limit on a bias, g.
-    :param limit_name: name of the limit in the messages (CLI option, node parameter).
+    :param limit_name: name of the limit in the messages (an option, a parameter; '': none).
     :param unit: spelling of m/s² in the messages.
     :param ml_hint: how the front end asks for the 9-parameter method.
     :return: :class:`Review`.
@@ -160,7 +166,7 @@ def review(cal, max_predicted_error, allow_unconverged=False, refuse_unphysical=
         if cross_cause:
             value = f'{acc:.4f} {unit}' if np.isfinite(acc) else 'unknown'
             reason = (f'predicted accuracy {value} is worse than the limit '
-                      f'{max_predicted_error:g} {unit} ({limit_name}): '
+                      f'{max_predicted_error:g} {unit}{_named(limit_name)}: '
                       + cross_axis_words(cross, ml_hint))
         else:
             poses = poses_that_help(cal)

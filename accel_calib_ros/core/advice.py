@@ -33,8 +33,8 @@ from .accuracy import predicted_accuracy
 from .constants import G0
 from .errors import CalibrationError, InputError
 from .finite import finite_or_none
-from .information import (Information, NEAR_DEG, parameter_index, PRIOR_WEIGHT,
-                          SIGMA_FLOOR, window_variance)
+from .information import (DISTINCT_DEG, Information, NEAR_DEG, parameter_index,
+                          PRIOR_WEIGHT, SIGMA_FLOOR, window_variance)
 from .poses import (CANDIDATE_DIRECTIONS, CANDIDATE_NAMES, CANDIDATE_POSES, fisher_rows,
                     pose_name)
 
@@ -42,8 +42,6 @@ DEFAULT_TARGET = 0.01
 """Default predicted accuracy target, m/s²."""
 DEFAULT_SIGMA_FLOOR = SIGMA_FLOOR
 """Error of a window mean that no averaging removes, m/s² (``core.information``)."""
-DISTINCT_DEG = 15.0
-"""Two windows closer than this are the same direction (matches check_geometry)."""
 MIN_WINDOWS = {'ml': 10, 'gn': 6}
 MIN_DIRECTIONS = {'ml': 9, 'gn': 6}
 INFLATION_NOTE = 4.0

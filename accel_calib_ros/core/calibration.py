@@ -22,21 +22,27 @@ standard library only (no scipy, no file I/O): reading and writing files lives i
 ``accel_calib_ros.dataio.calibration_file``.
 """
 
+from dataclasses import dataclass, field
 import datetime
 
 import numpy as np
 
 from .accelerometer.thermal import ThermalTable
 from .constants import G0
-from .record import fresh, record
 
 METHODS = ('ml', 'ml-bc', 'gn', 'ellipsoid')
 """Fitting methods a calibration can come from."""
 
 PARAMETER_NAMES = ('T_xx', 'T_xy', 'T_xz', 'T_yy', 'T_yz', 'T_zz', 'b_x', 'b_y', 'b_z')
-"""Order of the 9 calibration parameters in covariances (same as ``core.ml``)."""
+"""Order of the 9 calibration parameters in vectors and covariances (every fit's)."""
 
 
+MAX_SCALE_ERROR = 0.2
+"""Largest accelerometer scale error ``|T_ii - 1|`` believed (consumer MEMS: a few per cent)."""
+MAX_CROSS_AXIS = 0.1
+"""Largest accelerometer cross-axis term ``|T_ij| / T_ii`` believed."""
+MAX_BIAS_G = 0.25
+"""Largest accelerometer bias believed, g."""
 MAX_GYRO_BIAS = 1.0
 """Largest gyroscope bias believed, rad/s (57 °/s: a larger one means other units)."""
 GYRO_T_DIAGONAL_RANGE = (0.5, 2.0)
@@ -109,7 +115,7 @@ def magnetometer_problems(T, hard_iron_uT, R, field_uT, dip_deg):
     return problems
 
 
-@record
+@dataclass(eq=False)          # arrays: equal only to itself
 class MagnetometerPart:
     """
     A fitted magnetometer calibration (interface.md §10): ``raw = T @ R @ field + hard_iron``.
@@ -161,7 +167,7 @@ def _optional_vector(value, size):
     return np.asarray(value, dtype=float).reshape(size).copy()
 
 
-@record
+@dataclass(eq=False)          # arrays: equal only to itself
 class Calibration:
     """
     A fitted accelerometer calibration (see module docstring for the model).
@@ -201,12 +207,12 @@ class Calibration:
     method: str = 'ml'
     covariance: np.ndarray = None
     residual_rms: float = float('nan')
-    noise_std: np.ndarray = fresh(lambda: np.full(3, np.nan))
+    noise_std: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     observations: int = 0
     iterations: int = 0
     converged: bool = True
     seconds: float = 0.0
-    trace: list = fresh(list)
+    trace: list = field(default_factory=list)
     thermal: ThermalTable = None
     created: str = ''
     source: str = ''
@@ -268,7 +274,7 @@ class Calibration:
 
     @property
     def hysteresis(self):
-        """The heating/cooling term of the thermal tables (``Hysteresis``), or None."""
+        """Return the heating/cooling term of the thermal tables (``Hysteresis``), or None."""
         return None if self.thermal is None else self.thermal.hysteresis
 
     def lag_stream(self):
@@ -398,7 +404,8 @@ class Calibration:
             cov = cov + acc / 6.0
         return cov
 
-    def physical_problems(self, max_scale_error=0.2, max_cross_axis=0.1, max_bias_g=0.25):
+    def physical_problems(self, max_scale_error=MAX_SCALE_ERROR, max_cross_axis=MAX_CROSS_AXIS,
+                          max_bias_g=MAX_BIAS_G):
         """Reasons this calibration is not physical for an accelerometer in m/s², or []."""
         problems = []
         scale_error = np.abs(np.diag(self.T) - 1.0)

@@ -15,9 +15,10 @@ directions. :class:`ImuCollector` keeps
   message is kept (and so on), so the whole session stays covered with ever coarser
   spacing, which is what the ellipsoid fit needs.
 
-:meth:`ImuCollector.solve` runs ``core.outcomes.solve_gyro`` and ``solve_magnetometer`` on
-what was kept, with the session's windows (their ``t_start``/``t_stop``). numpy only
-here (the fits import scipy when they run).
+:meth:`ImuCollector.snapshot` copies what was kept, for the fits
+(``core.outcomes.solve_gyro`` and ``solve_magnetometer``, run by the session floor with
+the session's windows: their ``t_start``/``t_stop`` place them in the samples). numpy
+only.
 """
 
 from types import SimpleNamespace
@@ -237,15 +238,6 @@ class ImuCollector:
                            max_mag=self.max_mag, mag_received=self.mag_received,
                            gyro_seen=self.gyro_seen)
 
-    def solve(self, windows, accel, max_gyro_error, max_mag_error, field_uT=None):
-        """
-        Fit the gyroscope and the magnetometer with the accelerometer calibration ``accel``.
-
-        :param windows: the session's windows (see :meth:`windows_in`).
-        :returns: (gyro SensorOutcome, magnetometer SensorOutcome).
-        """
-        return self.snapshot().solve(windows, accel, max_gyro_error, max_mag_error, field_uT)
-
 
 class ImuSnapshot:
     """
@@ -260,43 +252,13 @@ class ImuSnapshot:
     :param gyro_seen: whether an angular rate ever came.
     """
 
+    __slots__ = ('raw', 'mags', 'capacity', 'ring_full', 'max_mag', 'mag_received',
+                 'gyro_seen')
+
     def __init__(self, raw, mags, capacity, ring_full, max_mag, mag_received, gyro_seen):
         self.raw, self.mags = raw, mags
         self.capacity, self.ring_full = capacity, ring_full
         self.max_mag, self.mag_received, self.gyro_seen = max_mag, mag_received, gyro_seen
-
-    def solve(self, windows, accel, max_gyro_error, max_mag_error, field_uT=None):
-        """
-        Fit the gyroscope and the magnetometer with the accelerometer calibration ``accel``.
-
-        :param windows: the session's windows (see :meth:`ImuCollector.windows_in`).
-        :returns: (gyro SensorOutcome, magnetometer SensorOutcome).
-        """
-        from .outcomes import absent, SensorOutcome, solve_gyro, solve_magnetometer
-        raw = self.raw
-        if self.capacity <= 0:
-            gyro = SensorOutcome('gyroscope', 'not collected', 'the node keeps no raw samples '
-                                 '(max_gyro_samples is 0)', unit='relative')
-        elif raw is None or raw.gyro is None:
-            gyro = absent('gyroscope', 'imu/data_raw carries no angular velocity'
-                          if raw is not None else 'no imu/data_raw received', 'relative')
-        else:
-            gyro = solve_gyro(raw, ImuCollector.windows_in(raw.t, windows), accel,
-                              max_gyro_error)
-            if gyro.status == 'insufficient' and self.ring_full:
-                gyro.reason += (f' (only the last {raw.t[-1] - raw.t[0]:.0f} s of raw samples '
-                                'are kept: max_gyro_samples)')
-        mags = self.mags
-        if self.max_mag <= 0:
-            mag = SensorOutcome('magnetometer', 'not collected', 'the node keeps no '
-                                'magnetometer samples (max_mag_samples is 0)', unit='uT')
-        elif mags is None:
-            mag = absent('magnetometer', 'no imu/mag received' if not self.mag_received
-                         else 'no usable imu/mag sample', 'uT')
-        else:
-            mag = solve_magnetometer(mags, ImuCollector.windows_in(mags.t, windows), accel,
-                                     max_mag_error, field_uT)
-        return gyro, mag
 
 
 def _window_times(windows):

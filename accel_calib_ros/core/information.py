@@ -40,6 +40,7 @@ windows cannot yet determine the model a weak prior over all candidates ranks th
 numpy only.
 """
 
+from dataclasses import dataclass
 import math
 
 import numpy as np
@@ -47,7 +48,6 @@ import numpy as np
 from .accuracy import sphere_average_matrix
 from .constants import G0
 from .poses import CANDIDATE_DIRECTIONS, CANDIDATE_NAMES, FACE_COUNT, fisher_rows
-from .record import record
 
 SIGMA_FLOOR = 1e-3
 """Error of a window mean that no averaging removes, m/s² (about 0.1 mg: bias
@@ -67,7 +67,7 @@ DISTINCT_DEG = 15.0
 """Two windows closer than this are the same orientation."""
 PRIOR_WEIGHT = 1e-3
 """Weight, in typical windows, of the weak all-candidate prior used before a solve."""
-MAX_CONDITION = 1e12
+MAX_INFORMATION_CONDITION = 1e12
 """Condition number (of the scaled information) beyond which a parameter is undetermined."""
 
 
@@ -83,7 +83,7 @@ def _inverse(matrix):
     scale = np.sqrt(np.maximum(np.diag(matrix), 1e-300))
     normed = matrix / np.outer(scale, scale)
     with np.errstate(all='ignore'):
-        if not np.linalg.cond(normed) <= MAX_CONDITION:
+        if not np.linalg.cond(normed) <= MAX_INFORMATION_CONDITION:
             return None
         return np.linalg.inv(normed) / np.outer(scale, scale)
 
@@ -106,7 +106,7 @@ def window_variance(weights, noise_std, count, floor=None):
     return np.maximum(sigma ** 2 / np.maximum(w, 1e-300) + floor ** 2, 1e-18)
 
 
-@record
+@dataclass(eq=False)          # arrays: equal only to itself
 class Information:
     """
     The information static windows hold about a calibration (see the module docstring).
@@ -219,7 +219,7 @@ def information(readings, T, bias, gravity=G0, method='ml', weights=None,
     return info
 
 
-@record
+@dataclass(eq=False)          # arrays: equal only to itself
 class CrossAxis:
     """
     What the cross-axis terms that ``gn`` holds at zero cost (see the module docstring).

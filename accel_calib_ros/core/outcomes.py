@@ -1,11 +1,11 @@
 """
 The whole IMU from one session: the gyroscope and magnetometer beside the accelerometer.
 
-What ``accel-calib fit``, ``advise``, ``guide`` and the calibration node share once the
-accelerometer is calibrated: run :func:`core.gyroscope.fit.fit_gyro` and
-:func:`core.magnetometer.fit.fit_magnetometer` on the same recording and static windows,
-and judge each sensor on its own (:class:`SensorOutcome`). A sensor whose data are
-absent or insufficient is reported as such and never fails the others:
+What every front door shares once the accelerometer is calibrated: run
+:func:`core.gyroscope.fit.fit_gyro` and :func:`core.magnetometer.fit.fit_magnetometer` on
+the same recording and static windows, and judge each sensor on its own
+(:class:`SensorOutcome`). A sensor whose data are absent or insufficient is reported as
+such and never fails the others:
 
 - ``calibrated``: fitted, converged, plausible, and its predicted accuracy within the
   sensor's limit (relative for the gyroscope, µT for the magnetometer): stored;
@@ -18,9 +18,11 @@ absent or insufficient is reported as such and never fails the others:
 - ``not fitted``: its data are there but the accelerometer calibration it builds on
   failed; ``not collected``: the calibration node did not keep what it needs.
 
-numpy/scipy only (through the two fits); no files, no ROS.
+numpy/scipy only (through the two fits); no files, no ROS, no front door's words (a
+limit's name comes in as an argument).
 """
 
+from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
@@ -28,7 +30,6 @@ import numpy as np
 from .calibration import gyro_problems, magnetometer_problems, MagnetometerPart, MAX_GYRO_BIAS
 from .errors import CalibrationError, InputError
 from .finite import finite_list, finite_or_none
-from .record import fresh, record
 
 STATUSES = ('calibrated', 'absent', 'insufficient', 'refused', 'not fitted', 'not collected')
 """Words of :attr:`SensorOutcome.status`."""
@@ -53,7 +54,7 @@ about 2° of heading where the horizontal field is 25 µT.
 """
 
 
-@record
+@dataclass
 class SensorOutcome:
     """
     One sensor's result beside the accelerometer.
@@ -72,7 +73,7 @@ class SensorOutcome:
     result: object = None
     limit: float = float('nan')
     unit: str = ''
-    details: dict = fresh(dict)
+    details: dict = field(default_factory=dict)
 
     @property
     def calibrated(self):
@@ -119,7 +120,7 @@ def _gyro_details(g):
 
 
 def solve_gyro(samples, windows=None, accel=None, max_error=DEFAULT_MAX_GYRO_ERROR,
-               full_scale=None):
+               full_scale=None, limit_name=''):
     """
     Calibrate the gyroscope's scale and misalignment from the session (interface.md §9).
 
@@ -128,10 +129,11 @@ def solve_gyro(samples, windows=None, accel=None, max_error=DEFAULT_MAX_GYRO_ERR
     :param accel: the accelerometer Calibration (corrects the gravity directions).
     :param max_error: acceptance limit of the predicted accuracy (relative).
     :param full_scale: gyro range, rad/s, for the clipping test (None: from the data).
+    :param limit_name: how the front door spells ``max_error`` ('': not named).
     :returns: SensorOutcome with the GyroCalibration as ``result`` when fitted.
     """
     if samples.gyro is None:
-        return absent('gyroscope', 'the data have no gx gy gz', 'relative')
+        return absent('gyroscope', 'no angular rate', 'relative')
     from .gyroscope.fit import fit_gyro
     out = SensorOutcome('gyroscope', 'insufficient', limit=max_error, unit='relative')
     try:
@@ -155,7 +157,7 @@ def solve_gyro(samples, windows=None, accel=None, max_error=DEFAULT_MAX_GYRO_ERR
     elif not g.predicted_accuracy <= max_error:
         out.status = 'refused'
         out.reason = (f'predicted accuracy {100 * g.predicted_accuracy:.3f} % exceeds the '
-                      f'limit {100 * max_error:.3g} % (--max-gyro-error); turn through more '
+                      f'limit {100 * max_error:.3g} %{_named(limit_name)}; turn through more '
                       'moves about every axis')
     else:
         out.status, out.reason = 'calibrated', None
@@ -173,7 +175,7 @@ def _mag_details(m):
 
 
 def solve_magnetometer(samples, windows=None, accel=None, max_error=DEFAULT_MAX_MAG_ERROR,
-                       field_uT=None):
+                       field_uT=None, limit_name=''):
     """
     Calibrate the magnetometer: soft and hard iron, alignment, field and dip (interface.md §10).
 
@@ -182,11 +184,12 @@ def solve_magnetometer(samples, windows=None, accel=None, max_error=DEFAULT_MAX_
     :param accel: the accelerometer Calibration (corrects the up directions).
     :param max_error: acceptance limit of the predicted accuracy, µT.
     :param field_uT: known field magnitude, µT, or None to fit it.
+    :param limit_name: how the front door spells ``max_error`` ('': not named).
     :returns: SensorOutcome with the MagnetometerCalibration as ``result`` when fitted.
     """
     if samples.mag is None or not samples.mag_rows.any():
-        return absent('magnetometer', 'the data have no mx my mz' if samples.mag is None
-                      else 'no row holds a magnetometer sample', 'uT')
+        return absent('magnetometer', 'no magnetic field' if samples.mag is None
+                      else 'no magnetometer sample', 'uT')
     from .magnetometer.fit import fit_magnetometer
     out = SensorOutcome('magnetometer', 'insufficient', limit=max_error, unit='uT')
     try:
@@ -209,11 +212,15 @@ def solve_magnetometer(samples, windows=None, accel=None, max_error=DEFAULT_MAX_
     elif not m.predicted_accuracy <= max_error:
         out.status = 'refused'
         out.reason = (f'predicted accuracy {m.predicted_accuracy:.3f} µT exceeds the limit '
-                      f'{max_error:g} µT (--max-mag-error); turn the sensor through more '
+                      f'{max_error:g} µT{_named(limit_name)}; turn the sensor through more '
                       'orientations and hold more poses')
     else:
         out.status, out.reason = 'calibrated', None
     return out
+
+
+def _named(name):
+    return f' ({name})' if name else ''
 
 
 def store(cal, gyro=None, magnetometer=None):

@@ -1,11 +1,11 @@
 """The sample stream every part of the package passes around."""
 
+from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
 
 from .errors import InputError
-from .record import record
 from .stats import median
 
 MAX_ABS = {'time': 1e12, 'acceleration': 1e6, 'temperature': 1e3, 'gyro': 1e6,
@@ -20,7 +20,7 @@ def _bad_rows(values, limit):
     return ~(ok if ok.ndim == 1 else ok.all(axis=1))
 
 
-@record
+@dataclass(eq=False)          # arrays: equal only to itself
 class Samples:
     """
     A recording of accelerometer samples, SI units (REP-103).

@@ -35,8 +35,8 @@ from .units import UNITS
 from .yaml_schema import (_found, _mapping, _matrix, _number, _optional, _string,  # noqa: F401
                           _vector, Bad as _Bad, load_yaml, nesting_depth, UniqueKeyLoader)
 from ..core.calibration import (Calibration, FIELD_RANGE_UT, gyro_problems, magnetometer_problems,
-                                MagnetometerPart, MAX_GYRO_BIAS, MAX_HARD_IRON_UT, METHODS,
-                                PARAMETER_NAMES)
+                                MagnetometerPart, MAX_CONDITION, MAX_GYRO_BIAS, MAX_HARD_IRON_UT,
+                                METHODS, PARAMETER_NAMES)
 from ..core.errors import CalibrationError, InputError
 from ..core.finite import finite_or_none
 
@@ -50,8 +50,6 @@ MAX_NESTING = 32
 writer's files reach 5): checked before parsing, so a file of nested brackets is
 refused at once instead of after a long parse."""
 MAX_BANDS = 200
-MAX_CONDITION = 10.0
-"""Largest condition number of T accepted (a real sensor is within a few per cent of 1)."""
 GRAVITY_RANGE = (0.1, 100.0)
 """Gravity magnitudes accepted, m/s² (1.0 allows data in units of g)."""
 T_DIAGONAL_RANGE = (1e-6, 1e6)

@@ -6,7 +6,7 @@ A header row names the columns; required ``t``, ``ax``, ``ay``, ``az``; optional
 three cells empty in a row without a magnetometer sample, as the magnetometer runs
 slower than the accelerometer); other columns are ignored; names are matched
 case-insensitively after stripping spaces. Rows are parsed in blocks of
-``CHUNK_ROWS`` (fast path), and a file that the fast path refuses is read again line
+``PARSE_CHUNK_ROWS`` (fast path), and a file that the fast path refuses is read again line
 by line to say which line and which cell are wrong. Cells must be finite and within
 ``PLAUSIBLE_LIMIT``; time must increase.
 """
@@ -301,11 +301,11 @@ def _mag_rows_without_sample(path, cells, empty, lines):
         empty[name] = []
 
 
-CHUNK_ROWS = 1 << 17
+PARSE_CHUNK_ROWS = 1 << 17
 """CSV rows parsed at a time: reading holds one such block beyond the result."""
 
 
-def _parse_chunks(f, columns, chunk_rows=CHUNK_ROWS, empty_ok=()):
+def _parse_chunks(f, columns, chunk_rows=PARSE_CHUNK_ROWS, empty_ok=()):
     """Yield blocks (rows, len(columns)) of the CSV data lines of ``f``, parsed by numpy."""
     while True:
         lines = list(itertools.islice(f, chunk_rows))

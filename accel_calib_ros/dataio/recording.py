@@ -21,7 +21,7 @@ wrong and where (file, line, topic), so the CLI can print it and exit with statu
 
 from pathlib import Path
 
-from .csv_io import CHUNK_ROWS, iter_csv, load_csv
+from .csv_io import iter_csv, load_csv, PARSE_CHUNK_ROWS
 from .csv_write import csv_writer, write_samples_csv
 from .formats import ACCEPTED, BAG_SUFFIXES
 from .rosbag_io import load_bag, write_bag
@@ -77,7 +77,7 @@ def load_samples(path, imu_topic=None, temp_topic=None, on_read=None, time_unit=
         raise InputError(f'{p}: {exc}') from None
 
 
-def iter_samples(path, chunk_rows=CHUNK_ROWS, imu_topic=None, temp_topic=None, on_read=None,
+def iter_samples(path, chunk_rows=PARSE_CHUNK_ROWS, imu_topic=None, temp_topic=None, on_read=None,
                  time_unit='s', mag_topic=None):
     """
     Load a recording piece by piece: a generator of validated ``Samples``.

@@ -1,21 +1,29 @@
 """
 The library of physical effects the model-gap workflow can add to a calibration.
 
-An effect is one small class: its name (the interface's vocabulary), what it is
-physically, its parameters with units, when a session can see it, and its
-design-matrix columns: the change of the raw reading per unit parameter, evaluated
-at the true acceleration, the temperature and the time. The same columns drive the
-fit (``diagnose``) and the simulation (``Effect.apply``), so both always agree.
-Adding an effect is adding one subclass to ``EFFECTS``, for example an offset that
-moves with the square of the temperature::
+An effect is one small class (``effect.Effect``): its name (the interface's vocabulary),
+what it is physically, its parameters with units, when a session can see it, and its
+design-matrix columns: the change of the raw reading per unit parameter, evaluated at the
+true acceleration, the temperature and the time. The same columns drive the fit
+(``diagnose``) and the simulation (``Effect.apply``), so both always agree. Everything
+else the workflow and the simulator ask of an effect (its family, what contradicts it,
+how its replicates are drawn, what separates it from another, its datasheet size) is an
+attribute or a method of that class, with a default that suits most effects.
 
-    class TemperatureBias2(PerAxisEffect):
+Adding an effect is adding one subclass to ``EFFECTS``, for example an offset that moves
+with the square of the temperature::
+
+    class TemperatureBiasQuadratic(PerAxisEffect):
         name = 'temperature_bias_quadratic'
         description = 'the zero-g offset bends with temperature'
         param_names = ('c2_x', 'c2_y', 'c2_z')
         unit = 'm/s² per °C²'
         label = 'offset curvature'
+        variable = 'temperature'
         applicable = TemperatureBias.applicable
+        datasheet_unit = 'g per °C²'
+        datasheet = 0.05e-3
+        sensor_range = (0.02e-3, 0.05e-3)
 
         def columns(self, accel, temp, time, gravity=G0):
             return _per_axis(np.repeat(temp[:, None] ** 2, 3, axis=1))
@@ -23,104 +31,23 @@ moves with the square of the temperature::
         def axis_text(self, value, gravity):
             return f'{1000 * value / gravity:+.4f} mg/°C²'
 
-The search, the F-test, the ambiguity and visibility checks, the null simulation,
-the report and the JSON then pick it up.
+        def to_si(self, value):
+            return value * G0
+
+and listing ``TemperatureBiasQuadratic()`` at the end of ``EFFECTS`` (a test sets
+``EFFECTS[effect.name] = effect``). The fit, the search and the F-test, the ambiguity
+notes with what to record to separate it from a rival (by its family, ``variable``), the
+visibility check, the naming power, the null simulation, the report and the JSON then pick
+it up; so do the simulator (``sim.sensor.with_datasheet_effect`` and ``mpu9250_like``, by
+its own columns since it names no sensor field), ``accel-calib simulate --effects`` and the
+virtual device.
 """
 
 import numpy as np
 
+from .effect import _per_axis, Effect, PerAxisEffect, still_time_reason
+from .walk import BiasRandomWalk
 from ..core.constants import G0
-
-
-class Effect:
-    """
-    Base class: a term ``raw += columns(a, temp, time) @ params`` of the sensor model.
-
-    :param name: spec vocabulary name.
-    :param description: one line of physics for people.
-    :param param_names: names of the parameters, in order.
-    :param unit: SI unit of the parameters.
-    """
-
-    name = ''
-    description = ''
-    param_names = ()
-    unit = ''
-    variable = 'direction'
-    """The session variable the effect's residual follows (a ``diagnose`` probe name)."""
-    searched = 0
-    """Parameters chosen by a search before the fit (a time constant): counted in tests."""
-    nests = ()
-    """Library effects this one contains as a special case (it replaces them in a set)."""
-    one_pose = False
-    """Whether one still pose while the temperature sweeps can show it (``modelgap.still``:
-    per-axis offsets in temperature and time, no direction, no scale)."""
-
-    def applicable(self, context, baseline):
-        """Return '' when the session can show this effect, else the reason it cannot."""
-        return ''
-
-    heating = False
-    """Whether the effect depends on the direction of the temperature's change: then its
-    columns change sign where the session heats instead of cools (``reverse_heating``), and
-    its size counts what it does in the direction the session did not run (``still``)."""
-
-    def reverse_heating(self, cols):
-        """Return the columns (N, 3, k) at the same temperatures run the other way."""
-        return -cols if self.heating else cols
-
-    def bind(self, c):
-        """
-        Return the effect as it applies to one session (``model.Conditions``).
-
-        Most effects are the same in every session. One whose columns depend on the
-        session's history (a lagged temperature) or span (a smooth basis in time)
-        returns a copy bound to that history, so that it can then be evaluated at any
-        single condition (the worst case, a held-out window).
-        """
-        return self
-
-    def bindings(self, c):
-        """Return the session-bound versions to search over (one, unless a search is needed)."""
-        return [self.bind(c)]
-
-    def search(self, c, score):
-        """Return the session-bound version with the highest ``score(bound)``."""
-        options = self.bindings(c)
-        if len(options) == 1:
-            return options[0]
-        return max(options, key=score)
-
-    def columns(self, accel, temp, time, gravity=G0):
-        """
-        Return the design columns, shape (N, 3, k).
-
-        :param accel: (N, 3) true specific force, m/s².
-        :param temp: (N,) temperature minus the session mean, °C.
-        :param time: (N,) time minus the session mean, s.
-        """
-        raise NotImplementedError
-
-    def apply(self, params, accel, temp, time, gravity=G0):
-        """Return the change of the raw reading (N, 3), m/s², for ``params`` (k,)."""
-        return self.columns(accel, temp, time, gravity) @ np.asarray(params, float)
-
-    def magnitude(self, params, gravity=G0, sensitivity=(1.0, 1.0, 1.0)):
-        """
-        Return the fitted size in the units a datasheet uses, as text.
-
-        :param sensitivity: (3,) diagonal of the fitted T, readings per m/s² (1 for
-            data in m/s²; the counts per m/s² for raw-count recordings).
-        """
-        raise NotImplementedError
-
-
-def _per_axis(values):
-    """Put a (N, 3) per-axis quantity on the diagonal of (N, 3, 3) columns."""
-    cols = np.zeros(values.shape + (3,))
-    for i in range(3):
-        cols[:, i, i] = values[:, i]
-    return cols
 
 
 class Nonorthogonality(Effect):
@@ -128,9 +55,14 @@ class Nonorthogonality(Effect):
     description = 'the sensitive axes are not at right angles (cross-axis sensitivity)'
     param_names = ('T_xy', 'T_xz', 'T_yz')
     unit = 'dimensionless'
+    acts_on = 'axes'
+    in_baseline = ('ml',)
+    datasheet_unit = 'fraction (cross-axis sensitivity)'
+    datasheet = 0.02
 
     def applicable(self, context, baseline):
-        return 'the ml model already has non-orthogonality' if baseline == 'ml' else ''
+        return (f'the {baseline} model already has non-orthogonality'
+                if baseline in self.in_baseline else '')
 
     def columns(self, accel, temp, time, gravity=G0):
         cols = np.zeros((len(accel), 3, 3))
@@ -144,20 +76,10 @@ class Nonorthogonality(Effect):
         return 'axis angles off 90°: ' + ', '.join(
             f'{pair} {v:+.3f}°' for pair, v in zip(('xy', 'xz', 'yz'), angles))
 
-
-class PerAxisEffect(Effect):
-    """An effect with one parameter per axis, reported per axis after dividing by T_ii."""
-
-    label = ''
-
-    def axis_text(self, value, gravity):
-        """Return one axis's parameter (per unit sensitivity) as datasheet text."""
-        raise NotImplementedError
-
-    def magnitude(self, params, gravity=G0, sensitivity=(1.0, 1.0, 1.0)):
-        params = np.asarray(params, float) / np.asarray(sensitivity)
-        return f'{self.label} ' + ', '.join(
-            f'{axis} {self.axis_text(v, gravity)}' for axis, v in zip('xyz', params))
+    def hide_in(self, sensor, size):
+        """Make T diagonal plus these cross-axis terms: a gn baseline lacks exactly them."""
+        sensor.T = np.diag(np.diag(sensor.T))
+        sensor.T[np.triu_indices(3, 1)] = size
 
 
 class ScaleNonlinearity(PerAxisEffect):
@@ -165,6 +87,12 @@ class ScaleNonlinearity(PerAxisEffect):
     description = 'the scale factor changes with the acceleration (quadratic response)'
     param_names = ('k2_x', 'k2_y', 'k2_z')
     unit = 'fraction of reading per g'
+    acts_on = 'scale'
+    datasheet_unit = 'fraction of reading at 1 g'
+    datasheet = 0.005
+    sensor_range = (0.002, 0.005)
+    sensor_field = 'nonlinearity'
+    drawn_always = True
 
     def columns(self, accel, temp, time, gravity=G0):
         return _per_axis(accel ** 2 / gravity)
@@ -181,6 +109,12 @@ class TemperatureBias(PerAxisEffect):
     param_names = ('c_x', 'c_y', 'c_z')
     unit = 'm/s² per °C'
     variable = 'temperature'
+    modelled_by_thermal_tables = True
+    datasheet_unit = 'g per °C'
+    datasheet = 1.5e-3
+    sensor_range = (0.5e-3, 1.5e-3)
+    sensor_field = 'bias_tempco'
+    drawn_always = True
 
     def applicable(self, context, baseline):
         if not context.get('has_temp', True):
@@ -196,6 +130,9 @@ class TemperatureBias(PerAxisEffect):
     def axis_text(self, value, gravity):
         return f'{1000 * value / gravity:+.3f} mg/°C'
 
+    def to_si(self, value):
+        return value * G0
+
 
 class TemperatureScale(PerAxisEffect):
     name = 'temperature_scale'
@@ -203,6 +140,13 @@ class TemperatureScale(PerAxisEffect):
     param_names = ('s_x', 's_y', 's_z')
     unit = '1 per °C'
     variable = 'temperature'
+    acts_on = 'scale'
+    modelled_by_thermal_tables = True
+    datasheet_unit = '1 per °C'
+    datasheet = 2.6e-4
+    sensor_range = (0.1e-4, 2.6e-4)
+    sensor_field = 'scale_tempco'
+    drawn_always = True
 
     applicable = TemperatureBias.applicable
 
@@ -221,6 +165,11 @@ class BiasDrift(PerAxisEffect):
     param_names = ('d_x', 'd_y', 'd_z')
     unit = 'm/s² per s'
     variable = 'time'
+    datasheet_unit = 'g per min (not in the datasheet)'
+    datasheet = 1e-3
+    sensor_range = (0.5e-3, 2e-3)
+    sensor_field = 'bias_drift'
+    drawn_always = True
     one_pose = True
 
     def applicable(self, context, baseline):
@@ -237,26 +186,44 @@ class BiasDrift(PerAxisEffect):
     def axis_text(self, value, gravity):
         return f'{60000 * value / gravity:+.3f} mg/min'
 
+    def to_si(self, value):
+        return value * G0 / 60.0
 
-MONOTONIC = 0.9
-"""On one still pose, a rank correlation of temperature with time beyond this hides a
-time effect in the offset's curve."""
+    def contradiction(self, setfit, measured):
+        """
+        Return why the still windows contradict the drift as fitted, or ''.
 
-
-def still_time_reason(context, baseline):
-    """
-    Return why a time effect cannot be tested on one still pose here, or ''.
-
-    The one-pose baseline follows the offset along the temperature; while the temperature
-    only rises (or only falls), time is a function of it, and a drift or a wander is one
-    more bend of that curve.
-    """
-    r = context.get('time_temp_rank', 0.0)
-    if baseline != 'still' or abs(r) <= MONOTONIC:
-        return ''
-    return (f'temperature and time move together in this recording (rank correlation '
-            f"{r:+.2f}): a change with time is a bend of the offset's curve here; let the "
-            'temperature fall and rise again (a chamber cycle) to tell them apart')
+        The drift the still windows show (``agreement.still_drift``: the slope of the
+        readings inside windows whose temperature held steady) against the fitted one, each
+        with its covariance: chi² with 3 degrees of freedom, contradicted below
+        ``criterion.P_SUPPORT``.
+        """
+        from scipy import stats
+        from .criterion import P_SUPPORT
+        still = measured.still
+        if still is None:
+            return ''
+        model, fit = setfit.model, setfit.fit
+        params = model.split(fit.x)[2][self.name]
+        k = len(params)
+        index = model.index(self.name)
+        cov = (np.linalg.pinv(fit.jac.T @ fit.jac)[index:index + k, index:index + k]
+               * max(fit.gap ** 2, 1.0))
+        delta = params - still['slope']
+        total = cov + np.diag(np.asarray(still['se']) ** 2)
+        chi2 = float(delta @ np.linalg.solve(total, delta))
+        p = float(stats.chi2.sf(chi2, k))
+        if p >= P_SUPPORT:
+            return ''
+        per_min = 60000.0 / G0
+        return ('contradicted by the still windows: over '
+                f'{still["seconds"]:.0f} s of still data (longest {still["longest_s"]:.0f} s) '
+                'the offset drifts ' + ', '.join(
+                    f'{axis} {per_min * v:+.3g} ± {per_min * e:.2g}'
+                    for axis, v, e in zip('xyz', still['slope'], still['se']))
+                + ' mg/min, not ' + ', '.join(f'{axis} {per_min * v:+.3g}'
+                                              for axis, v in zip('xyz', params))
+                + f' (p = {p:.1e})')
 
 
 def start_slope(time, temp):
@@ -300,9 +267,21 @@ class TemperatureLag(PerAxisEffect):
     param_names = ('c_x', 'c_y', 'c_z')
     unit = 'm/s² per °C (of the lagged temperature)'
     variable = 'temperature'
-    one_pose = True
+    history = True
     searched = 2
+    continuous_search = True
     label = 'offset drift with the lagged temperature'
+    datasheet_unit = 'g per °C of the die temperature'
+    datasheet = 1.5e-3
+    sensor_range = (0.5e-3, 1.5e-3)
+    sensor_field = 'bias_tempco'
+    sensor_settings = (('thermal_lag_s', 120.0),)
+    on_device = False
+    one_pose = True
+    sim_note = 'the offset follows a die temperature 1-5 min behind the recorded one'
+
+    SENSOR_TAU_S = (60.0, 300.0)
+    """Range of the die's time constant of a random sensor that has the lag, s."""
 
     TAU_GRID = 16
     """Time constants tried (log-spaced) before the best one is refined."""
@@ -313,8 +292,8 @@ class TemperatureLag(PerAxisEffect):
     def __init__(self, tau=None, time=None, lag=None, start=0.0, die=False):
         self.tau, self._time, self._lag, self.start = tau, time, lag, start
         if die:
-            # One still pose: the offset curve at the die's temperature, linearised, a share
-            # per axis of the lag tau (``modelgap.still``); it turns with the heating.
+            # One still pose (``modelgap.still_pose``): the offset curve at the die's temperature,
+            # linearised, a share of the lag tau per axis; it turns with the heating.
             self.unit = 'share of tau: the die lags by share x tau'
             self.heating = True
 
@@ -408,6 +387,12 @@ class TemperatureLag(PerAxisEffect):
                 start, top = found.x, -found.fun
         return self.bind(c, np.exp(log_tau), start)
 
+    def same_binding(self, other):
+        return abs(np.log(other.tau / self.tau)) < 0.005 and other.start == self.start
+
+    def searched_values(self):
+        return {} if self.tau is None else {'tau_s': float(self.tau)}
+
     def columns(self, accel, temp, time, gravity=G0):
         if self._time is None:
             raise ValueError('temperature_lag needs a session: use bind(conditions, tau)')
@@ -430,6 +415,14 @@ class TemperatureLag(PerAxisEffect):
         return (super().magnitude(params, gravity, sensitivity)
                 + f'; the die lags the reported temperature by tau = {self.tau:.3g} s')
 
+    def to_si(self, value):
+        return value * G0
+
+    def draw_into(self, sensor, rng, asked):
+        """Give a random sensor the lag: its offset coefficient, then a die 1-5 min behind."""
+        super().draw_into(sensor, rng, asked)
+        sensor.thermal_lag_s = float(rng.uniform(*self.SENSOR_TAU_S))
+
 
 class TemperatureRate(PerAxisEffect):
     name = 'temperature_rate'
@@ -439,10 +432,15 @@ class TemperatureRate(PerAxisEffect):
     param_names = ('k_x', 'k_y', 'k_z')
     unit = 'm/s² per °C of gradient (the temperature minus its first-order lag tau)'
     variable = 'temperature'
+    history = True
     searched = 1
+    continuous_search = True
     one_pose = True
     heating = True
+    on_device = False
     label = 'offset with the heating rate'
+    sim_note = ('a temperature gradient across the package (sim.chamber: accel-calib simulate '
+                '--chamber --hysteresis MG)')
 
     TAU_GRID = 12
     """Time constants tried (log-spaced) before the best one is refined."""
@@ -498,6 +496,12 @@ class TemperatureRate(PerAxisEffect):
         best = np.exp(found.x) if -found.fun > scores[k] else grid[k]
         return self.bind(c, best)
 
+    def same_binding(self, other):
+        return abs(np.log(other.tau / self.tau)) < 0.005
+
+    def searched_values(self):
+        return {} if self.tau is None else {'tau_s': float(self.tau)}
+
     def columns(self, accel, temp, time, gravity=G0):
         if self._time is None:
             raise ValueError('temperature_rate needs a session: use bind(conditions, tau)')
@@ -510,115 +514,6 @@ class TemperatureRate(PerAxisEffect):
     def magnitude(self, params, gravity=G0, sensitivity=(1.0, 1.0, 1.0)):
         return (super().magnitude(params, gravity, sensitivity)
                 + f' of heating (the rate smoothed over tau = {self.tau:.3g} s)')
-
-
-class BiasRandomWalk(Effect):
-    name = 'bias_random_walk'
-    description = ('the zero-g offset wanders with time (a smooth random walk, not a straight '
-                   'line and not with temperature)')
-    unit = 'm/s²'
-    variable = 'time'
-    one_pose = True
-    nests = ('bias_drift',)
-
-    def __init__(self, degree=None, start=0.0, span=1.0):
-        self.degree, self.start, self.span = degree, start, span
-
-    @property
-    def param_names(self):
-        if not self.degree:
-            return ()
-        return tuple(f'o_{axis}_{j}' for axis in 'xyz' for j in range(self.degree + 1))
-
-    MAX_DEGREE = 4
-    """Most cosine terms per axis (beside the trend): with it they hold most of a random
-    walk's variance about its mean (its cosine coefficients fall like 1/k); a dependence with
-    more structure (a cycle, a step) is left to the time probe and the step alternative."""
-
-    @classmethod
-    def degrees_for(cls, windows):
-        """Return the numbers of smooth terms per axis to try in a session (2 to 4)."""
-        return range(2, int(min(cls.MAX_DEGREE, max(2, (windows - 12) // 6))) + 1)
-
-    def applicable(self, context, baseline):
-        span = context.get('time_span', 0.0)
-        if span < 60.0:
-            return f'the session lasts only {span:.0f} s'
-        windows = context.get('windows', 0)
-        if windows < 30:
-            return f'{windows} windows are too few to follow a wander'
-        return still_time_reason(context, baseline)
-
-    def bind(self, c, degree=2):
-        return BiasRandomWalk(degree, float(np.min(c.time)), float(max(np.ptp(c.time), 1e-9)))
-
-    def bindings(self, c):
-        return [self.bind(c, d) for d in self.degrees_for(len(c.time))]
-
-    def search(self, c, score):
-        """Return the binding with the best BIC: a random walk is as rough as the data show."""
-        n = len(c.time)
-        return max(self.bindings(c), key=lambda b: score(b) - len(b.param_names) * np.log(n))
-
-    def basis(self, time):
-        """
-        Return the wander's terms over the session, (N, degree + 1).
-
-        u - 1/2 (a walk's trend: its cosine series converges slowly, so the straight part
-        is a term of its own, and a plain drift is a special case) and cos(k pi u),
-        k = 1..degree, u the time scaled to [0, 1] over the session.
-        """
-        u = np.clip((np.asarray(time, float) - self.start) / self.span, 0.0, 1.0)
-        k = np.arange(1, self.degree + 1)
-        return np.column_stack([u - 0.5, np.cos(np.pi * k[None, :] * u[:, None])])
-
-    def columns(self, accel, temp, time, gravity=G0):
-        if self.degree is None:
-            raise ValueError('bias_random_walk needs a session: use bind(conditions)')
-        phi = self.basis(time)
-        k = self.degree + 1
-        cols = np.zeros((len(time), 3, 3 * k))
-        for i in range(3):
-            cols[:, i, i * k:(i + 1) * k] = phi
-        return cols
-
-    def cosines(self, params):
-        """Return the cosine coefficients of parameters (..., 3 (d + 1)) as (..., 3, d)."""
-        p = np.asarray(params, float)
-        return p.reshape(p.shape[:-1] + (3, self.degree + 1))[..., 1:]
-
-    def brownian(self, time):
-        """
-        Return what a walk of K = 1 per √s does to these terms at window times ``time``.
-
-        (variance of each cosine coefficient (d,), mean variance per window left beyond all
-        the terms and a constant): a Brownian path from the session's start, covariance
-        min(t_a, t_b), least-squares fitted by a constant and the terms.
-        """
-        t = np.asarray(time, float) - self.start
-        m = np.minimum.outer(t, t)
-        design = np.column_stack([np.ones(len(t)), self.basis(time)])
-        a = np.linalg.pinv(design)
-        factors = np.einsum('kn,nm,km->k', a, m, a)[2:]
-        rest = np.eye(len(t)) - design @ a
-        return factors, float(np.trace(rest @ m @ rest.T)) / len(t)
-
-    def wander(self, params, gravity=G0, sensitivity=(1.0, 1.0, 1.0), points=200):
-        """Return the offset wander over the session, (points, 3), in g per axis."""
-        phi = self.basis(self.start + self.span * np.linspace(0.0, 1.0, points))
-        coef = np.asarray(params, float).reshape(3, self.degree + 1)
-        path = phi @ coef.T / np.asarray(sensitivity)
-        return (path - path.mean(axis=0)) / gravity
-
-    def magnitude(self, params, gravity=G0, sensitivity=(1.0, 1.0, 1.0)):
-        path = self.wander(params, gravity, sensitivity)
-        rms = np.sqrt(np.mean(path ** 2, axis=0))
-        # A random walk of K per sqrt(s) wanders K sqrt(T / 6) RMS about its mean over T.
-        k = rms / np.sqrt(self.span / 6.0)
-        return ('offset wander ' + ', '.join(
-            f'{axis} {1000 * r:.3f} mg RMS' for axis, r in zip('xyz', rms))
-            + ' over the session; as a random walk about '
-            + ', '.join(f'{1000 * v:.3g}' for v in k) + ' mg/√s')
 
 
 EFFECTS = {effect.name: effect for effect in (

@@ -4,11 +4,12 @@ How an effect shows in this session: visibility, confounding, size and where.
 ``visibility`` says whether the poses can show an effect at all, ``column_correlation``
 whether two effects look alike here, ``effect_worst_case_mg`` how large an error an
 effect makes in corrected acceleration, ``where_variables`` and ``strongest_correlations``
-what the residuals follow.
+what the residuals follow, ``separation_advice`` what to record to tell two apart.
 """
 
 import numpy as np
 
+from .effect import SEPARATE_BY_POSES
 from .effects import effect_of, G0, name_of
 
 
@@ -194,22 +195,14 @@ def effect_worst_case_mg(model, x, c, name, params):
 
 
 def separation_advice(a, b, c):
-    """Return what to record so that two confounded effects can be told apart."""
-    pair = {a, b}
-    thermal = pair & {'temperature_bias', 'temperature_scale', 'temperature_lag'}
-    r = float(np.corrcoef(c.temp, c.time)[0, 1]) if c.temp_span > 0 else 0.0
-    if pair & {'bias_drift', 'bias_random_walk'} and thermal and ('bias_random_walk' in pair
-                                                                  or abs(r) < 0.9):
-        return ('the temperature follows a smooth curve in time, which a wandering offset can '
-                'follow too; let the temperature go up and down more than once, or hold it '
-                'steady for a while, so the two separate')
-    if 'bias_drift' in pair and thermal:
-        return (f'temperature and time move together in this session (r = {r:.2f}); hold '
-                'the temperature steady for a while, or let it fall, so the two separate')
-    if 'temperature_scale' in pair and thermal - {'temperature_scale'}:
-        return ('record poses with each axis both up and down at every temperature, so an '
-                'offset and a scale change look different')
-    if pair == {'temperature_bias', 'temperature_lag'}:
-        return ('change the temperature faster than the die follows it (a step, or warm-up '
-                'and cool-down), or hold each temperature until the die settles')
-    return 'record more poses spread over the sphere (each axis up, down and sideways)'
+    """
+    Return what to record so that two confounded effects can be told apart.
+
+    What either effect says separates it from the other (``Effect.separation_advice``, by
+    their families), else more poses over the sphere.
+
+    :param a: library name or Effect; ``b`` likewise. :param c: the session's Conditions.
+    """
+    first, second = effect_of(a), effect_of(b)
+    return (first.separation_advice(second, c) or second.separation_advice(first, c)
+            or SEPARATE_BY_POSES)

@@ -7,7 +7,7 @@ within-window spectrum (batch means and a tapered periodogram); ``null_gap_limit
 degrees of freedom say how well the noise itself was measured).
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import optimize, stats
@@ -56,7 +56,7 @@ class WindowNoise:
 
     def apply(self, windows):
         """Return the windows with the means the noise level describes (tapered or not)."""
-        return windows if self.means is None else windows.replace(mean=self.means)
+        return windows if self.means is None else replace(windows, mean=self.means)
 
     @property
     def coloured(self):

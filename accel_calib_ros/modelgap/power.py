@@ -9,13 +9,15 @@ directions, temperatures and times, the noise of each window mean as measured (w
 noise level's own uncertainty, chi²_nu / nu, and the scatter beyond it when the null uses
 the scatter between windows), and the model found, linearised about its fit (``Design``).
 Each library effect not named is injected at a size (worst case in corrected acceleration,
-mg; a random direction of its parameters; a random time constant for the lag; a Brownian
-path for the walk) into ``REPLICATES`` replicates, and the selection's decision is replayed
-on them with the same ``criterion`` as on the session: the effect counts as named when it
-wins the first round and passes the gates after it. The stated size is the smallest of a
-ladder from the practical threshold up (factor ``LADDER``, one bisection) where it is named
-in at least ``TARGET`` of the replicates. Vectorised over replicates; seeded from the data,
-so the same session always gets the same figure.
+mg) into ``REPLICATES`` replicates drawn by the effect itself (``Effect.simulate_shapes``:
+a random direction of its parameters at one of its simulated bindings, e.g. a random time
+constant for the lag; a Brownian path for the walk), and the selection's decision is
+replayed on them with the same ``criterion`` as on the session, an effect's own
+contradiction included (``Effect.replay_veto``: a walk too smooth to be one): the effect
+counts as named when it wins the first round and passes the gates after it. The stated
+size is the smallest of a ladder from the practical threshold up (factor ``LADDER``, one
+bisection) where it is named in at least ``TARGET`` of the replicates. Vectorised over
+replicates; seeded from the data, so the same session always gets the same figure.
 
 What it leaves out: the later rounds (an injected effect alone is named in the first), the
 still-data check of a drift, and the probes (they act only when the gap stays open), and
@@ -27,7 +29,6 @@ import zlib
 
 import numpy as np
 
-from .agreement import walk_design, walk_rate_low, walk_smoothness_p
 from .criterion import (COLLINEAR, cv_folds, decide, evaluate, fold_maps, P_SUPPORT,
                         RIVAL_BIC, support_stats, Trial)
 from .effects import EFFECTS, G0
@@ -70,11 +71,13 @@ class Binding:
         projected = self.cols - design.q @ (design.q.T @ self.cols)
         self.u = orthonormal(projected)
         self.pinv = np.linalg.pinv(projected)
-        nested = [n for n in getattr(effect, 'nests', ()) if n in design.final.names]
+        nested = [n for n in effect.nests if n in design.final.names]
         self.k = (len(effect.param_names) + effect.searched
                   - sum(design.final.k(n) for n in nested))
         self.coef_var = np.sum(self.pinv ** 2, axis=1)
-        self._maps = self._worst = self._walk = self._own = None
+        self._maps = self._worst = self._own = None
+        self.memo = {}
+        """What the effect's own methods keep between replays (``Effect.replay_veto``)."""
         self.design = design
 
     @property
@@ -108,19 +111,13 @@ class Binding:
             self._own = -self.design.grid.matrix(self.effect, full=True)
         return self._own
 
-    def walk(self):
-        """Return ``agreement.walk_design`` for a fit that holds these terms."""
-        if self._walk is None:
-            d = self.design
-            self._walk = walk_design(orthonormal(np.hstack([d.q, self.u])), d.offset,
-                                     d.fits.c.time, self.effect.start)
-        return self._walk
+    def size_mg(self, params):
+        """Return the size of parameters (R, k), mg: the smaller of ``worst`` and ``own``."""
+        return np.minimum(worst_case_mg(self.worst, params), worst_case_mg(self.own, params))
 
-
-def _bindings(effect, c):
-    """Return the bindings the simulation uses (``simulated_bindings`` when an effect has it)."""
-    return (effect.simulated_bindings(c) if hasattr(effect, 'simulated_bindings')
-            else effect.bindings(c))
+    def joint_basis(self):
+        """Return an orthonormal basis of the final model's columns and these, (N, p + k)."""
+        return orthonormal(np.hstack([self.design.q, self.u]))
 
 
 class Design:
@@ -149,14 +146,14 @@ class Design:
         self.limit = null_gap_limit(self.dof, self.noise_dof)
         self.names = list(names)
         self.testable = [n for n in names if self.dof - self._size(n) >= 2]
-        self.options = {n: [Binding(self, b) for b in _bindings(EFFECTS[n], fits.c)]
+        self.options = {n: [Binding(self, b) for b in EFFECTS[n].simulated_bindings(fits.c)]
                         for n in self.names}
         self.stacks = {n: _stack(options) for n, options in self.options.items()}
-        self.offset = fits._columns(final, _Offset())
+        self.offset = fits._columns(final, _Offset())        # (N, 3): per unit offset
         self._mark_confounded()
-        self.s = fits.noise_scale(final)            # the noise of each residual
+        self.s = fits.noise_scale(final)             # the noise of each residual
         self.T_inv = np.linalg.inv(final.model.split(final.fit.x)[0])
-        self.row_window = fits.row_window           # the window each residual belongs to
+        self.row_window = fits.row_window            # the window of each residual
         self.corr = self._correlations()
 
     def _mark_confounded(self):
@@ -184,7 +181,7 @@ class Design:
                 self.confounded[name] = options[0].confounded
 
     def _size(self, name):
-        options = _bindings(EFFECTS[name], self.fits.c)
+        options = EFFECTS[name].simulated_bindings(self.fits.c)
         return min(len(b.param_names) + b.searched for b in options)
 
     def _correlations(self):
@@ -200,7 +197,7 @@ class Design:
 
 
 class _Offset:
-    """A constant offset per axis, as an effect's columns (for the walk's path)."""
+    """A constant offset per axis, as an effect's columns (a wander of the offset)."""
 
     param_names = ('x', 'y', 'z')
     searched = 0
@@ -288,8 +285,8 @@ def replay(design, y):
 
     Every binding of every testable effect is scored at once (its chi²), the binding the
     search would take is picked, and the rest of a trial's evidence (size, held-out chi²,
-    a walk's roughness) is computed where the trial is significant: elsewhere it cannot be
-    supported whatever its size.
+    the effect's own contradiction, ``Effect.replay_veto``) is computed where the trial is
+    significant: elsewhere it cannot be supported whatever its size.
 
     :returns: (winner index (R,), the trials, per trial its fitted signal (R, N), the
         residuals of the final model (R, N), the evidence of ``criterion.evaluate``).
@@ -302,6 +299,7 @@ def replay(design, y):
     r_count = len(y)
     rows = np.arange(r_count)
     for name in design.testable:
+        effect = EFFECTS[name]
         options = design.options[name]
         chi2 = np.empty((r_count, len(options)))
         for stack in design.stacks[name]:
@@ -327,13 +325,10 @@ def replay(design, y):
             part, cv[where], params, worst[where] = _evidence_of(stack, local, y[where],
                                                                  design.folds)
             signal[where] = part
-            if name == 'bias_random_walk':
-                b = stack.options[0]
-                k2 = walk_rate_low(b.effect.cosines(params), b.effect.cosines(b.coef_var)[None],
-                                   b.effect.brownian(design.fits.c.time)[0])
-                p_walk = walk_smoothness_p(chosen[where], k2, b.walk(), design.noise_dof)
-                veto[where] = np.where(p_walk < P_SUPPORT, 'too smooth', '')
-        trials.append(Trial(name, EFFECTS[name].variable, k[pick], chosen,
+            reasons = effect.replay_veto(stack, params, chosen[where], design)
+            if reasons is not None:
+                veto[where] = reasons
+        trials.append(Trial(name, effect.variable, k[pick], chosen,
                             design.dof - k[pick], worst, cv, veto))
         fitted.append(signal)
     evidence = evaluate(base, base_cv, trials, design.n, design.nu, design.threshold)
@@ -372,32 +367,7 @@ class Simulation:
                                   / max(design.noise_dof, 1.0))[:, None]
         if excess > 0:
             self.noise += rng.standard_normal((count, n)) * excess / design.s[None, :]
-        self.shape = np.zeros((count, n))
-        if name == 'bias_random_walk':
-            self._walk(rng)
-            return
-        options = [b for b in design.options[name] if not b.confounded]
-        truth = rng.integers(len(options), size=count)
-        for j in np.unique(truth):
-            b = options[j]
-            idx = np.flatnonzero(truth == j)
-            u = rng.standard_normal((len(idx), b.cols.shape[1]))
-            u /= np.minimum(worst_case_mg(b.worst, u), worst_case_mg(b.own, u))[:, None]
-            self.shape[idx] = u @ b.cols.T
-
-    def _walk(self, rng):
-        """Draw a Brownian offset path per replicate, scaled to a worst case of 1 mg."""
-        d = self.design
-        t = d.fits.c.time
-        order = np.argsort(t, kind='stable')
-        dt = np.diff(t[order], prepend=t[order][0])
-        steps = rng.standard_normal((REPLICATES, len(t), 3)) * np.sqrt(dt)[None, :, None]
-        path = np.empty_like(steps)
-        path[:, order] = np.cumsum(steps, axis=1)
-        path -= path.mean(axis=1, keepdims=True)
-        worst = np.max(np.linalg.norm(path @ d.T_inv.T, axis=2), axis=1) * 1000.0 / G0
-        path /= worst[:, None, None]
-        self.shape = np.einsum('rni,ni->rn', path[:, d.row_window], d.offset)
+        self.shape = EFFECTS[name].simulate_shapes(design, rng, count)
 
     def named(self, size, ml=None):
         """
@@ -439,7 +409,7 @@ class Simulation:
                 signal = np.sqrt(np.mean((fitted[j][idx] * d.s) ** 2, axis=1))
                 kept[idx] = signal >= SLOW_FACTOR * np.sqrt(sx2)
         hit &= kept
-        if ml is not None and self.name != 'nonorthogonality' and self.name in ml.testable:
+        if ml is not None and self.name in ml.testable:
             ml_winner = replay(ml, y)[0]
             hit &= (ml_winner == ml.testable.index(self.name)) | alternative
         # The gap left open is a notice when the verdict would be "not explained": beyond
@@ -499,8 +469,9 @@ def calibrate_power(fits, final, names, coloured=False, excess=0.0, ml_extra=Non
         the scatter between windows).
     :param scale: variance factor of the noise over the measured level (the final model's
         own scatter when the noise inside the windows is correlated).
-    :param ml_extra: for a gn baseline, (N, 3) columns of the cross-axis terms ml adds (the
-        ml confirmation is replayed too), else None.
+    :param ml_extra: for a gn baseline, (N, j) columns of the terms ml holds and gn lacks
+        (``Effect.in_baseline``: the cross-axis terms; the ml confirmation is replayed too),
+        else None.
     :returns: dict name -> {'min_named_mg': size or None, 'rate': share named at it (as
         itself or as the alternative to a simpler confounded effect), 'min_noticed_mg' and
         'noticed_rate' (named as anything, or the gap left open), 'rate_at_threshold',
@@ -510,7 +481,8 @@ def calibrate_power(fits, final, names, coloured=False, excess=0.0, ml_extra=Non
     design = Design(fits, final, names, coloured=coloured)
     ml = None
     if ml_extra is not None:
-        ml = Design(fits, final, [n for n in names if n != 'nonorthogonality'], ml_extra)
+        ml = Design(fits, final, [n for n in names if 'ml' not in EFFECTS[n].in_baseline],
+                    ml_extra)
     rng = np.random.default_rng(_seed(design))
     out = {}
     for name in names:

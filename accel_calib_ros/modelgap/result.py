@@ -154,27 +154,16 @@ class DiagnoseResult:
 
     def walk_roughness(self):
         """
-        Return the scatter per window, m/s², that a named random walk leaves, 0 without one.
+        Return the scatter per window, m/s², that the named effects leave beyond their terms.
 
-        ``bias_random_walk`` follows the offset with a trend and a few cosine terms; a random
-        walk of K per √s gives each cosine coefficient a variance K² f_k and leaves a wander
-        beyond the terms of variance K² r per window (``BiasRandomWalk.brownian``, about
-        2 T / (k pi)² and T / (pi² d) over a session of T seconds). K is estimated from the
-        fitted coefficients; the scatter is taken along gravity, averaged over windows.
+        0 unless one is rough: a named random walk leaves the wander its smooth terms cannot
+        follow (``Effect.roughness``); the variances of several add.
         """
         fit = self.fits[-1]
         model = Model(self.baseline, fit.effects)
-        walk = model.objects.get('bias_random_walk')
-        if walk is None:
-            return 0.0
-        T, _, params = model.split(fit.x)
-        coef = walk.cosines(params['bias_random_walk']) / np.abs(np.diag(T))[:, None]
-        factors, rest = walk.brownian(self.conditions.time)
-        k2 = np.mean(coef ** 2 / factors, axis=1)
-        rough = k2 * rest                                          # variance per axis
-        a = model.true_accel(fit.x, self.conditions)
-        n = a / np.linalg.norm(a, axis=1, keepdims=True)
-        return float(np.sqrt(np.mean(n ** 2 @ rough)))
+        variance = sum(effect.roughness(model, fit.x, self.conditions)
+                       for effect in model.objects.values())
+        return float(np.sqrt(variance))
 
     @property
     def walk_explains_rest(self):

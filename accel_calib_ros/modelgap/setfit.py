@@ -92,15 +92,15 @@ class SessionFits:
         the windows is correlated, since noise slower than a window then escapes it and
         only the model's own residual scatter can be trusted.
     :param noise_dof: the measured noise level's degrees of freedom (default ``nu``).
-    :param veto: callable(name, SetFit) -> '' or the reason a measurement contradicts the
-        effect as fitted in that set (the still data, a walk's roughness).
+    :param measured: ``effect.Measurements`` of the session, which can contradict an effect
+        as fitted (``Effect.contradiction``: the still data, a walk's roughness); None: none.
     """
 
-    def __init__(self, baseline, c, start, threshold, nu, veto=None, noise_dof=None):
+    def __init__(self, baseline, c, start, threshold, nu, measured=None, noise_dof=None):
         self.baseline, self.c, self.threshold, self.nu = baseline, c, threshold, nu
         self.noise_dof = nu if noise_dof is None else noise_dof
         self.n = len(c.readings)
-        self.veto = veto or (lambda name, setfit: '')
+        self.measured = measured
         self.folds = make_folds(c.time)
         self.candidates = []
         self._grid = None
@@ -129,7 +129,7 @@ class SessionFits:
         setfit = self._full(names, bound, ref)
         if setfit is None:
             return None
-        if any(hasattr(bound[n], 'tau') for n in free):
+        if any(bound[n].continuous_search for n in free):
             setfit = self._swap_profile(setfit, ref)
         self.cache[key] = setfit
         return setfit
@@ -204,47 +204,59 @@ class SessionFits:
 
     def _swap_profile(self, setfit, ref, passes=2):
         """
-        Re-choose a continuous searched parameter (the lag's tau) about the joint fit.
+        Re-choose continuous searched parameters (the lag's tau) about the joint fit.
 
         Linearised about the joint fit, changing tau swaps the lag's columns: the residual
         without the lag is r - J(tau) c, and each other tau is scored by what [the other
-        columns, J(tau')] leave of it. The best is refitted when it lowers the chi².
+        columns, J(tau')] leave of it. The best is refitted when it lowers the chi²; each
+        effect with a continuous search (``Effect.continuous_search``) in turn, until a pass
+        moves none.
         """
         for _ in range(passes):
-            name = next((n for n in setfit.names if hasattr(setfit.bound[n], 'tau')), None)
-            if name is None:
+            moved = False
+            for name in [n for n in setfit.names if setfit.bound[n].continuous_search]:
+                trial = self._swap(setfit, name)
+                if trial is not None:
+                    setfit, moved = trial, True
+            if not moved:
                 return setfit
-            model, fit = setfit.model, setfit.fit
-            k = model.n_base
-            for n in setfit.names:
-                if n == name:
-                    break
-                k += len(setfit.bound[n].param_names)
-            size = len(setfit.bound[name].param_names)
-            rest = np.delete(fit.jac, np.s_[k:k + size], axis=1)
-            q = orthonormal(rest)
-            cols = self._columns(setfit, setfit.bound[name])
-            r = fit.residuals - cols @ fit.x[k:k + size]
-            r = r - q @ (q.T @ r)
-
-            def explained(bound, q=q, r=r):
-                u = orthonormal(self._columns(setfit, bound), q)
-                return float(np.sum((u.T @ r) ** 2))
-            effect = EFFECTS[name]
-            new = effect.search(self.c, explained)
-            old = setfit.bound[name]
-            if (abs(np.log(new.tau / old.tau)) < 0.005
-                    and getattr(new, 'start', None) == getattr(old, 'start', None)):
-                return setfit
-            bound = dict(setfit.bound)
-            bound[name] = new
-            trial = self._full(setfit.names, bound, setfit)
-            if trial is None or trial.chi2 >= setfit.chi2:
-                return setfit
-            setfit = trial
         return setfit
 
+    def _swap(self, setfit, name):
+        """Return ``setfit`` refitted with ``name``'s binding re-chosen, or None (no better)."""
+        model, fit = setfit.model, setfit.fit
+        k = model.n_base
+        for n in setfit.names:
+            if n == name:
+                break
+            k += len(setfit.bound[n].param_names)
+        size = len(setfit.bound[name].param_names)
+        rest = np.delete(fit.jac, np.s_[k:k + size], axis=1)
+        q = orthonormal(rest)
+        cols = self._columns(setfit, setfit.bound[name])
+        r = fit.residuals - cols @ fit.x[k:k + size]
+        r = r - q @ (q.T @ r)
+
+        def explained(bound, q=q, r=r):
+            u = orthonormal(self._columns(setfit, bound), q)
+            return float(np.sum((u.T @ r) ** 2))
+        new = EFFECTS[name].search(self.c, explained)
+        if setfit.bound[name].same_binding(new):
+            return None
+        bound = dict(setfit.bound)
+        bound[name] = new
+        trial = self._full(setfit.names, bound, setfit)
+        if trial is None or trial.chi2 >= setfit.chi2:
+            return None
+        return trial
+
     # -- what the selection asks ------------------------------------------------------------
+
+    def veto(self, name, setfit):
+        """Return why a measurement contradicts effect ``name`` as fitted in ``setfit``, or ''."""
+        if self.measured is None:
+            return ''
+        return setfit.bound[name].contradiction(setfit, self.measured)
 
     def worst(self, setfit, name):
         """Return the worst-case error of effect ``name`` as fitted in ``setfit``, mg."""

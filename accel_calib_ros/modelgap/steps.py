@@ -44,8 +44,7 @@ def record_steps(result, chosen):
                     'worst_case_mg': float(trial.worst[0]),
                     'effect_worst_case_mg': float(fits.worst(final, name)),
                     'description': effect.description}
-        if getattr(effect, 'tau', None) is not None:
-            evidence['tau_s'] = float(effect.tau)
+        evidence.update(effect.searched_values())
         if len(chosen) > 1:
             _, joint, _ = member_support(fits, chosen, name)
             if joint is not None:

@@ -11,12 +11,14 @@ Model-gap workflow: where simulation and measurement disagree, and why.
    jointly (``setfit``), searched parameters too, compared by one criterion
    (``criterion``: BIC with the pooled noise level, held-out chi² where the margin is small,
    Occam among confounded ties); a member that the others make redundant, refitted jointly,
-   is withdrawn. Measurements about one effect (the still data of a drift, the roughness of
-   a walk) can contradict it; no rule between two effects and no probe vetoes a set.
+   is withdrawn. Measurements about one effect (``Effect.contradiction``: the still data of
+   a drift, the roughness of a walk) can contradict it; no rule between two effects and no
+   probe vetoes a set.
 3. What the noise and the probes say after it (``pruning``): an effect no larger than slow
    noise's wander, or one that only projects a dependence of another shape while the gap
    stays open, is withdrawn; the probes say where what is left lives. With a gn baseline,
-   only what the ml baseline also finds is named (``_confirm_with_ml``).
+   only what the ml baseline also finds is named, or a term ml holds and gn lacks
+   (``Effect.in_baseline``) when ml's own terms are significant (``_confirm_with_ml``).
 4. The power: how large each library effect must be for this workflow to name it on this
    session's design, by simulation (``power``); a verdict of noise that could not have
    named a library effect of practical size says "cannot tell".
@@ -27,8 +29,9 @@ windows (the calibration node), ``held_out_check`` cross-validates the finding.
 
 import numpy as np
 
-from .agreement import still_contradicts, still_drift, walk_too_smooth
+from .agreement import still_drift
 from .criterion import P_SUPPORT, support_stats
+from .effect import Measurements
 from .effects import EFFECTS, G0
 from .evidence import visibility
 from .model import conditions_from_windows, fit_model, min_windows, Model, model_start
@@ -118,7 +121,7 @@ def _search(windows, baseline, gravity, rate_hz, noise, min_effect_mg, max_steps
     # noise is correlated: noise slower than a window then escapes the level (step 2).
     pooled = 0.0 if noise.coloured else noise.dof
     fits = SessionFits(baseline, c, model_start(baseline, start_cal), threshold, pooled,
-                       veto=_contradiction(c, still, noise.dof), noise_dof=noise.dof)
+                       measured=Measurements(c, still, noise.dof), noise_dof=noise.dof)
     base = fits.fit(())
     model, fit = base.model, base.fit
     has_temp = bool(np.all(np.isfinite(np.asarray(windows.temp, float))))
@@ -162,20 +165,10 @@ def _search(windows, baseline, gravity, rate_hz, noise, min_effect_mg, max_steps
     return result
 
 
-def _contradiction(c, still, nu):
-    """
-    Return the check of an effect against measurements about it alone (``SessionFits`` veto).
-
-    A linear drift against the drift the still windows show; a random walk against the
-    roughness a walk of its size leaves (``agreement``).
-    """
-    def veto(name, setfit):
-        if name == 'bias_drift' and still is not None:
-            return still_contradicts(setfit.model, setfit.fit, name, still)
-        if name == 'bias_random_walk':
-            return walk_too_smooth(setfit.model, setfit.fit, c, setfit.basis, nu)
-        return ''
-    return veto
+def _lacks(baseline):
+    """Return the library effects whose terms the ml baseline holds and ``baseline`` lacks."""
+    return [name for name, effect in EFFECTS.items()
+            if 'ml' in effect.in_baseline and baseline not in effect.in_baseline]
 
 
 def _naming_power(result):
@@ -195,8 +188,10 @@ def _naming_power(result):
     excess = result.excess_scatter() if open_gap else 0.0
     scale = max(1.0, result.gap_after ** 2) if coloured and not open_gap else 1.0
     extra = None
-    if result.baseline == 'gn' and (result.ml_check or {}).get('checked'):
-        extra = fits._columns(result.final_set, EFFECTS['nonorthogonality'])
+    lacking = _lacks(result.baseline)
+    if lacking and (result.ml_check or {}).get('checked'):
+        extra = np.hstack([fits._columns(result.final_set, EFFECTS[name].bind(fits.c))
+                           for name in lacking])
     try:
         result.naming_power = calibrate_power(
             fits, result.final_set, names, coloured=coloured, excess=excess, ml_extra=extra,
@@ -240,9 +235,10 @@ def _confirm_with_ml(result, windows, search):
 
     The effect search is run with the ml baseline too (with gn's practical threshold, so
     that only the baseline differs). An effect gn names is kept when
-    the ml search names it as well, or when it is nonorthogonality (the term gn lacks)
-    and the ml baseline's cross-axis terms are significant and large enough beside the
-    effects the ml search names (a time effect must not be taken for cross-axis terms).
+    the ml search names it as well, or when it is a term ml holds and gn lacks
+    (``Effect.in_baseline``: nonorthogonality) and the ml baseline's cross-axis terms are
+    significant and large enough beside the effects the ml search names (a time effect must
+    not be taken for cross-axis terms).
     An effect the ml baseline cannot test in this session (too few windows for its
     parameters beside ml's nine) is kept, and its step says so. When gn named something
     else, the gn search is run again over the confirmed effects only, and the rest is listed
@@ -257,12 +253,13 @@ def _confirm_with_ml(result, windows, search):
             step['confirmed'] = 'not checked with the ml baseline: ' + str(err)
         return result
     found = set(ml.missing_effects)
+    lacking = _lacks('gn')
     untested = {name: reason for name, reason in ml.skipped.items()
-                if name != 'nonorthogonality' and name not in result.skipped}
+                if name not in lacking and name not in result.skipped}
     allowed = set(found) | set(untested)
     cross = _cross_axis_evidence(ml, search)
     if cross['significant']:
-        allowed.add('nonorthogonality')
+        allowed.update(lacking)
     result.ml_check = {'checked': True, 'missing_effects': ml.missing_effects,
                        'verdict': ml.verdict(), 'cross_axis': cross}
     unconfirmed = [s['effect'] for s in result.steps if s['effect'] not in allowed]
@@ -273,7 +270,7 @@ def _confirm_with_ml(result, windows, search):
         for name in unconfirmed:
             reason = ('the ml baseline leaves no significant cross-axis term beside '
                       + (', '.join(ml.missing_effects) or 'its baseline')
-                      if name == 'nonorthogonality' else
+                      if name in lacking else
                       'not found with the ml baseline (it names '
                       + (', '.join(ml.missing_effects) or 'nothing') + ')')
             again.unconfirmed.append({'effect': name, 'reason': reason})

@@ -5,10 +5,10 @@ The live front door of the session floor; docs/calibration_node.md describes it 
 The samples come in on a node and thread of their own (:mod:`.calibration_intake`); every
 0.1 s they go to the streaming static-window detector and to the IMU collector, and each
 window brings the advice (``~/advice``, ``~/status``, ``/diagnostics``). ``~/calibrate``
-fits, judges and saves with the session floor (``session.accept.fit_and_accept``,
-``session.persist``) in a worker thread (:mod:`.calibration_job`) and answers when it is
-done, while the samples, ``/diagnostics`` and the parameter services go on; a second
-call meanwhile is refused with the reason. The model-gap check follows in the worker and
+fits, judges, saves and records with the session floor (``session.finish``) in a worker
+thread (:mod:`.calibration_job`) and answers when it is done, while the samples,
+``/diagnostics`` and the parameter services go on; a second call meanwhile is refused
+with the reason. The model-gap check follows in the worker and
 lands on ``~/status``.
 """
 
@@ -29,7 +29,7 @@ from std_srvs.srv import Trigger
 
 from .calibration_intake import Intake, subscribe
 from .calibration_job import Job, run_job, worker
-from .calibration_params import check_rate, METHODS, PARAMS, sensor_param  # noqa: F401
+from .calibration_params import check_rate, PARAMS, sensor_param  # noqa: F401
 from .common import (calibration_path, declare_parameters, expand_path, hardware_id,
                      make_directory, ParameterProblem, run, unsafe_output)
 from ..core.advice import advise, coverage
@@ -37,7 +37,7 @@ from ..core.collector import ImuCollector
 from ..core.errors import CalibrationError, InputError
 from ..core.finite import finite_or_none
 from ..core.windows import DEFAULTS, OnlineStaticDetector
-from ..session.accept import CollectedImu, NODE, Outcome, Settings, SI_UNITS
+from ..session.accept import CollectedImu, NODE, refused, Settings, SI_UNITS
 from ..session.windows import Window, WindowSet
 
 LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
@@ -394,8 +394,8 @@ class CalibrationNode(Node):
             outcome, notes = (await done).result()
         except Exception as err:        # noqa: B902 - a bug must not take the node down
             self.get_logger().error(f'~/calibrate failed: {type(err).__name__}: {err}')
-            outcome, notes = Outcome(refusal=f'internal error: {type(err).__name__}: {err}'), []
-            outcome.gyro, outcome.magnetometer = CollectedImu(None, None).not_fitted()
+            outcome, notes = refused(f'internal error: {type(err).__name__}: {err}',
+                                     words=NODE), []
         finally:
             self._solving = None
         self._report(outcome, notes, response)
@@ -434,8 +434,7 @@ class CalibrationNode(Node):
         windows = self.window_set(self.detector.peek())
         history = self.history_path() if self.params['history'] else None
         return Job(windows=windows,
-                   obs=windows.observations(self.params['max_weight_s'],
-                                            self.detector.rate_hz),
+                   rate_hz=self.detector.rate_hz,
                    settings=self.settings(), imu=CollectedImu(self.imu.snapshot(), windows),
                    path=self.path, history=history,
                    now=self.get_clock().now().nanoseconds * 1e-9)
@@ -469,6 +468,7 @@ class CalibrationNode(Node):
                         band_width_c=p['band_width_c'],
                         max_predicted_error=p['max_predicted_error'],
                         max_residual_ratio=p['max_residual_ratio'], refuse_unphysical=True,
+                        max_weight_s=p['max_weight_s'],
                         max_scale_error=p['max_scale_error'],
                         max_cross_axis=p['max_cross_axis'], max_bias_g=p['max_bias_g'],
                         max_gyro_error=p['max_gyro_error'], max_mag_error=p['max_mag_error'],

@@ -3,8 +3,8 @@ The work of ``~/calibrate``, off the executor: a snapshot, then the session floo
 
 The executor thread takes a :class:`Job` (the windows, the observations, the settings, a
 copy of what the collector kept, the paths: nothing the executor goes on changing) and
-hands it to one worker thread, which runs :func:`run_job`: fit and accept
-(``session.accept.fit_and_accept``), save (``session.persist.save``) and the history.
+hands it to one worker thread, which runs :func:`run_job`: the session floor's
+``session.finish.finish_session`` (fit and accept, save, history).
 The model-gap check after the response runs in the same thread. Meanwhile the samples,
 ``/diagnostics`` and the parameter services go on.
 
@@ -20,11 +20,6 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Optional
 
-import numpy as np
-
-from ..core.errors import CalibrationError, InputError
-from ..session.accept import fit_and_accept, Outcome
-
 
 @dataclass
 class Job:
@@ -32,7 +27,7 @@ class Job:
     Everything ``~/calibrate`` needs, copied when it was called.
 
     :param windows: the session's WindowSet (the windows kept and the one held now).
-    :param obs: their Observations.
+    :param rate_hz: the sample rate, Hz (the weight cap of windows without their own).
     :param settings: the session Settings of the parameters.
     :param imu: ``session.accept.CollectedImu`` over a copy of the collector.
     :param path: the calibration file.
@@ -41,7 +36,7 @@ class Job:
     """
 
     windows: object
-    obs: object
+    rate_hz: Optional[float]
     settings: object
     imu: object
     path: str
@@ -51,41 +46,16 @@ class Job:
 
 def run_job(job):
     """
-    Fit, judge, save and record one session (in the worker thread).
+    Fit, judge, save and record one session in the worker thread (as ``fit`` and ``guide``).
 
     :return: (Outcome, notes): the notes are what the node logs as warnings (the history
         could not record it).
     """
-    from ..session.persist import save
-    try:
-        outcome = fit_and_accept(job.obs, job.settings, job.imu)
-    except InputError as err:
-        outcome = Outcome(observations=len(job.obs), refusal=str(err))
-        outcome.gyro, outcome.magnetometer = job.imu.not_fitted()
-    if not outcome.accepted:
-        return outcome, []
-    try:
-        save(outcome, job.path)
-    except (OSError, InputError, CalibrationError) as err:
-        return outcome.refuse(f'cannot write {job.path}: {err}'), []
-    note = record(job, outcome.calibration) if job.history else None
-    return outcome, [note] if note else []
-
-
-def record(job, cal):
-    """Record a saved calibration and its windows; return why not (None when recorded)."""
-    import sqlite3
-    from ..dataio.sensor_id import normalise_sensor_id
-    from ..session.persist import record_history, window_times
-    w = job.windows
-    try:
-        sensor = normalise_sensor_id(cal.sensor_id or 'imu')
-        gyro = w.gyro_mean if w.gyro_mean is not None else np.full((len(w), 3), np.nan)
-        record_history(job.history, sensor, cal, w.mean, w.temp, job.obs.weights,
-                       window_times(w.t_mid, now=job.now), gyro, windows=len(w))
-    except (InputError, sqlite3.Error, OSError, ValueError) as err:
-        return f'history not recorded: {err}'
-    return None
+    from ..session.finish import finish_session, HistoryTarget
+    outcome = finish_session(job.windows, job.settings, job.imu, rate_hz=job.rate_hz,
+                             output=job.path, history=HistoryTarget(job.history, now=job.now)
+                             if job.history else None)
+    return outcome, outcome.notes
 
 
 def worker(name):
@@ -105,8 +75,8 @@ def warm_up():
     import importlib
     for name in ('scipy.optimize', 'scipy.linalg', 'scipy.stats', 'scipy.spatial.transform',
                  '..core.accelerometer.fit', '..core.information', '..core.gyroscope.fit',
-                 '..core.magnetometer.fit', '..core.outcomes', '..modelgap', '..session.gap',
-                 '..session.persist', '..dataio.history'):
+                 '..core.magnetometer.fit', '..core.outcomes', '..modelgap.workflow',
+                 '..session.gap', '..session.finish', '..session.persist', '..dataio.history'):
         try:
             importlib.import_module(name, __package__)
         except ImportError:         # an optional part missing: its first use says so

@@ -8,13 +8,10 @@ that is an IMU's, a sensor id that is printable) live here too.
 
 from .common import Param, ParameterProblem
 from ..core.collector import DEFAULT_MAX_MAG_SAMPLES, DEFAULT_MAX_SAMPLES
-from ..core.constants import G0
 from ..core.errors import InputError
-from ..core.outcomes import DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR
 from ..core.windows import DEFAULTS
-from ..session.accept import THERMAL_MODES
+from ..session.settings import DEFAULT_SETTINGS as S, LIVE_METHODS, THERMAL_MODES
 
-METHODS = ('ml', 'gn', 'ml-bc')
 MIN_RATE_HZ = 1.0
 """Lowest nonzero ``rate_hz`` accepted, Hz (an IMU below 1 Hz is a unit mistake)."""
 
@@ -26,26 +23,27 @@ def _detector_param(name, description):
 
 
 PARAMS = [
-    Param('method', 'ml', 'solver: ml (Sun & Xu, 9 parameters), gn (6 parameters) or ml-bc',
-          choices=METHODS),
+    Param('method', S.method, 'solver: ml (Sun & Xu, 9 parameters), gn (6 parameters) or '
+          'ml-bc', choices=LIVE_METHODS),
     Param('calibration_file', '',
           "YAML file written by ~/calibrate ('' = $ROS_HOME/accel_calib_ros/"
           'calibration.yaml); its directory is created'),
-    Param('gravity', G0, 'local gravity magnitude, m/s2', low=9.7, high=9.9),
-    Param('band_width_c', 10.0, 'width of a temperature band, degC', low=0.1, high=100.0),
+    Param('gravity', S.gravity, 'local gravity magnitude, m/s2', low=9.7, high=9.9),
+    Param('band_width_c', S.band_width_c, 'width of a temperature band, degC', low=0.1,
+          high=100.0),
     Param('thermal', 'auto',
           'auto: temperature-band tables when >= 2 bands are filled; on; off',
           choices=THERMAL_MODES),
-    Param('max_residual_ratio', 10.0,
+    Param('max_residual_ratio', S.max_residual_ratio,
           'refuse when the gravity-norm residual RMS exceeds this x window-mean noise',
           low=1.0),
-    Param('max_scale_error', 0.2, 'refuse when |T_ii - 1| exceeds this', low=0.0,
+    Param('max_scale_error', S.max_scale_error, 'refuse when |T_ii - 1| exceeds this', low=0.0,
           low_open=True, high=1.0),
-    Param('max_cross_axis', 0.1, 'refuse when |T_ij| / T_ii exceeds this', low=0.0,
+    Param('max_cross_axis', S.max_cross_axis, 'refuse when |T_ij| / T_ii exceeds this', low=0.0,
           low_open=True, high=1.0),
-    Param('max_bias_g', 0.25, 'refuse when a bias exceeds this many g', low=0.0,
+    Param('max_bias_g', S.max_bias_g, 'refuse when a bias exceeds this many g', low=0.0,
           low_open=True, high=2.0),
-    Param('max_predicted_error', 0.02,
+    Param('max_predicted_error', S.max_predicted_error,
           'refuse when the predicted accuracy (RMS error at 1 g over all orientations) '
           'exceeds this, m/s2', low=0.0, low_open=True, high=10.0),
     Param('target_accuracy', 0.01,
@@ -58,7 +56,7 @@ PARAMS = [
     Param('use_gyro', True, 'the angular rate must be still too (when the driver sends it)'),
     Param('max_windows', 500, 'windows kept; the oldest are dropped beyond', low=10,
           high=100000),
-    Param('max_weight_s', 5.0, 'a window weighs at most this many seconds of samples',
+    Param('max_weight_s', S.max_weight_s, 'a window weighs at most this many seconds of samples',
           low=1e-3, high=3600.0),
     Param('rate_hz', 0.0,
           'sample rate to start with, Hz: 0 (measure it from the stamps; always tracked) '
@@ -77,11 +75,11 @@ PARAMS = [
     Param('max_mag_samples', DEFAULT_MAX_MAG_SAMPLES,
           'imu/mag samples kept for the magnetometer fit (decimated by 2 whenever full; '
           '0 = no magnetometer calibration)', low=0, high=1_000_000, read_only=True),
-    Param('max_gyro_error', DEFAULT_MAX_GYRO_ERROR,
+    Param('max_gyro_error', S.max_gyro_error,
           'store the gyro scale/misalignment only when its predicted accuracy (RMS '
           'relative rate error over all directions) is at most this', low=0.0,
           low_open=True, high=1.0),
-    Param('max_mag_error', DEFAULT_MAX_MAG_ERROR,
+    Param('max_mag_error', S.max_mag_error,
           'store the magnetometer calibration only when its predicted accuracy (RMS field '
           'error over all directions) is at most this, uT', low=0.0, low_open=True,
           high=1000.0),

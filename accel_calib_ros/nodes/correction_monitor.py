@@ -1,5 +1,5 @@
 """
-The correction node's field monitor (issue 24): ROS plumbing around ``core.monitor``.
+The correction node's field monitor: ROS plumbing around ``core.monitor``.
 
 The node appends each corrected sample to a list (the rate before the monitor's bias is
 removed) and calls :meth:`NodeMonitor.flush` every ``block_n`` samples (``BLOCK_S`` of

@@ -21,17 +21,16 @@ from sensor_msgs.msg import Imu, MagneticField, Temperature
 from .common import (declare_parameters, hardware_id, Param, ParameterProblem, run,
                      Throttled)
 from ..dataio.link import assess, link_values, SerialLink, SystemClock
-from ..dataio.wire import (ACCEL_LSB_PER_G, Converter, FRAME_V1_SIZE, FRAME_V2_SIZE,
-                           GYRO_LSB_PER_DPS, MAG_AK8963, MagConverter, temp_counts_range,
-                           TEMP_FORMULAS)
+from ..dataio.link.serial_link import LOG_PERIOD_S
+from ..dataio.wire import (ACCEL_LSB_PER_G, BY_KEY, chip_of, Converter, DEFAULT_CHIP,
+                           FRAME_V1_SIZE, FRAME_V2_SIZE, GYRO_LSB_PER_DPS, MAG_AK8963,
+                           MagConverter, temp_counts_range, TEMP_FORMULAS)
 
 NODE_NAME = 'mpu9250_driver'
 QUEUE_DEPTH = 100
 FORMATS = ('binary', 'ascii')
 TIMESTAMPS = ('device', 'host')
-CHIP_CHOICES = ('auto', 'mpu9250', 'mpu9255', 'mpu6500', 'mpu6050')
-LOG_PERIOD_S = 10.0
-"""At most one log line per this many seconds about a firmware recovery."""
+CHIP_CHOICES = ('auto',) + tuple(BY_KEY)
 BITS_PER_BYTE = 10
 MAG_ASA_WAIT_S = 10.0
 """Magnetometer samples wait this long after opening the port for the info frame's ASA."""
@@ -50,7 +49,7 @@ PARAMS = [
           'when ranges_from_device)', choices=tuple(GYRO_LSB_PER_DPS)),
     Param('ranges_from_device', True, 'take ranges and chip from the firmware info frame'),
     Param('chip', 'auto', 'sensor for the temperature formula: auto (from the info frame, '
-          'else MPU-9250), mpu9250, mpu9255, mpu6500 or mpu6050', choices=CHIP_CHOICES),
+          f'else {DEFAULT_CHIP.name}) or ' + ', '.join(CHIP_CHOICES[1:]), choices=CHIP_CHOICES),
     Param('format', 'binary', 'wire format: binary or ascii', choices=FORMATS,
           read_only=True),
     Param('linear_acceleration_stddev', 0.03,
@@ -152,8 +151,9 @@ class Mpu9250Driver(Node):
         chip = self.params['chip']
         if chip == 'auto':
             info = self.device_info
-            chip = 'mpu6050' if info is not None and info.who_am_i == 0x68 else 'mpu9250'
-        return 'mpu6050' if chip == 'mpu6050' else 'mpu6500'
+            known = chip_of(info.who_am_i) if info is not None else None
+            chip = (known or DEFAULT_CHIP).key
+        return BY_KEY[chip].temp.name
 
     def _temp_range(self):
         if self.params['chip'] == 'auto' and self.device_info is None:

@@ -8,24 +8,23 @@ gravity-norm residual against the noise of the windows; what a calibration file 
 hold) and, once it is accepted, fits the gyroscope and the magnetometer beside it
 (``core.outcomes``), each judged on its own. It returns an :class:`Outcome`: the
 calibration, the verdict, the refusal with the advice that fixes it, the two other
-sensors' outcomes and the message. Nothing is written here (:mod:`.persist` saves).
+sensors' outcomes and the message. Nothing is written here (:mod:`.finish` saves and
+records, :mod:`.persist` holds how).
 
-A door differs only in how it spells things (:class:`Words`: an option or a
-parameter) and in its :class:`Settings`.
+A door differs only in its :class:`~.settings.Settings` and in how it spells things
+(:class:`~.settings.Words`).
 """
 
 import math
 
 import numpy as np
 
+from .settings import (FIT, GUIDE, NODE, Settings, SI_UNITS, THERMAL_MODES,  # noqa: F401
+                       Words)
 from ..core.acceptance import review
-from ..core.constants import G0
 from ..core.errors import CalibrationError, InputError
-from ..core.outcomes import (DEFAULT_MAX_GYRO_ERROR, DEFAULT_MAX_MAG_ERROR, json_keys,
-                             SensorOutcome, sensors_dict)
-from ..core.record import Record
+from ..core.outcomes import absent, json_keys, SensorOutcome, sensors_dict
 
-THERMAL_MODES = ('auto', 'on', 'off')
 MIN_WINDOW_NOISE = 0.005
 """Floor of the expected window-mean error, m/s² (about 0.5 mg).
 
@@ -34,89 +33,13 @@ accelerometer's bias does not repeat between poses better than about 0.5 mg (bia
 instability, hand and table vibration), and a 6-parameter ``gn`` fit leaves a
 residual of that order on a sensor with small cross-axis terms. Below this floor a
 residual is never a reason to refuse."""
-SI_UNITS = {'accel': 'm/s2'}
-"""The ``input_units`` of readings that come in m/s² (sensor_msgs/Imu, the guide's sources)."""
 NOT_FITTED = 'not fitted: the accelerometer calibration was refused'
 """Reason of a gyroscope or magnetometer that was not fitted because of the accelerometer."""
 
 
-class Words(Record):
+class Outcome:
     """
-    How a front door spells what its user can change (an option, a parameter).
-
-    :param limit: the name of the predicted-accuracy limit.
-    :param residual_limit: the name of the residual-ratio limit.
-    :param unit: the spelling of m/s².
-    :param ml_hint: how to ask for the 9-parameter method.
-    :param thermal_hint: how to switch the temperature tables on.
-    :param follow_up: added to a residual refusal (where to learn what the model misses).
-    :param unconverged: added to a refusal of a fit that did not converge.
-    :param no_windows: the refusal when nothing was collected.
-    :param no_temperature: the refusal of temperature tables without temperatures
-        (None: the fit's own words).
-    :param implausible: format of the refusal of a calibration no file may hold.
-    """
-
-    FIELDS = {'limit': '--max-predicted-error', 'residual_limit': '--max-residual-ratio',
-              'unit': 'm/s²', 'ml_hint': 'use --method ml', 'thermal_hint': 'add --thermal',
-              'follow_up': '; accel-calib diagnose DATA names what the model does not include',
-              'unconverged': '; nothing written (--force writes it anyway)',
-              'no_windows': 'no static windows found', 'no_temperature': None,
-              'implausible': 'the fitted calibration is implausible ({err}); are the data in '
-                             'm/s²?'}
-
-
-CLI = Words()
-"""The words of ``accel-calib fit`` and ``guide``."""
-NODE = Words(limit='max_predicted_error', residual_limit='max_residual_ratio', unit='m/s2',
-             ml_hint="set the parameter 'method' to ml", thermal_hint='try thermal:=auto',
-             follow_up='; the model-gap check follows on ~/status', unconverged='',
-             no_windows='no static windows collected yet: hold the sensor still in at '
-                        'least 10 different orientations, 2 s each',
-             no_temperature='thermal:=on but no temperature was received',
-             implausible='refusing to write the calibration: {err}')
-"""The words of the calibration node (parameters)."""
-
-
-class Settings(Record):
-    """
-    What a front door asks of the fit and of its acceptance.
-
-    :param method: 'ml', 'ml-bc', 'gn' or 'ellipsoid'.
-    :param gravity: local gravity, m/s².
-    :param thermal: 'on', 'off' or 'auto' (temperature-band tables when at least two
-        bands hold ``MIN_WINDOWS_PER_BAND`` windows).
-    :param band_width_c: width of a temperature band, °C.
-    :param max_predicted_error: acceptance limit of the predicted accuracy, m/s².
-    :param max_residual_ratio: refuse when the gravity-norm residual RMS exceeds this
-        many times the error expected of a window mean (None: not checked).
-    :param refuse_unphysical: refuse a fit no accelerometer in m/s² has (else a warning).
-    :param max_scale_error: physical limit of ``|T_ii - 1|``.
-    :param max_cross_axis: physical limit of ``|T_ij| / T_ii``.
-    :param max_bias_g: physical limit of a bias, g.
-    :param allow_unconverged: accept a fit that did not converge (``--force``).
-    :param max_gyro_error: the gyroscope's limit (relative); ``max_mag_error`` (µT).
-    :param field_uT: known field magnitude, µT, or None (fitted).
-    :param sensor_id: the sensor's name, written into the calibration (None: none).
-    :param input_units: how the readings were turned into m/s² (``accel``: 'm/s2', 'g' or
-        'counts' with ``counts_per_g`` and ``counts_offset``), written into the
-        calibration: it is right only for readings converted the same way.
-    :param source: where the data came from (written into the calibration).
-    :param words: how the door spells its options.
-    """
-
-    FIELDS = {'method': 'ml', 'gravity': G0, 'thermal': 'off', 'band_width_c': 10.0,
-              'max_predicted_error': 0.02, 'max_residual_ratio': 10.0,
-              'refuse_unphysical': True, 'max_scale_error': 0.2, 'max_cross_axis': 0.1,
-              'max_bias_g': 0.25, 'allow_unconverged': False,
-              'max_gyro_error': DEFAULT_MAX_GYRO_ERROR, 'max_mag_error': DEFAULT_MAX_MAG_ERROR,
-              'field_uT': None, 'sensor_id': None, 'input_units': None, 'source': '',
-              'words': CLI}
-
-
-class Outcome(Record):
-    """
-    The result of :func:`fit_and_accept`.
+    The result of a session: :func:`fit_and_accept`, then ``finish.finish_session``.
 
     :param calibration: the fitted Calibration (with the gyroscope and magnetometer parts
         that passed, when accepted), or None when no fit could be made.
@@ -127,13 +50,43 @@ class Outcome(Record):
     :param thermal: whether temperature tables were fitted.
     :param observations: the observations the fit was given.
     :param carried: what the file being replaced carried forward (:mod:`.persist`).
-    :param saved_to: where it was written (:mod:`.persist`), or None.
+    :param saved_to: where it was written, or None.
     :param limit: the predicted-accuracy limit it was held to, m/s².
+    :param history: what the history recorded (``db``, ``session``, ``windows_added``), or
+        None.
+    :param notes: what went wrong after an accepted calibration was saved (the history
+        could not take it): the door shows each as a warning.
+    :param cause: None when the data decided; 'input' when the settings cannot be fitted
+        as given (an unknown method, temperature tables without temperatures); 'output'
+        when a file it was asked to write could not be written (the refusal, or a note
+        after the saved calibration, says which and why). A command line reports those
+        two as errors of its arguments (exit status 2).
     """
 
-    FIELDS = {'calibration': None, 'verdict': None, 'refusal': None, 'gyro': None,
-              'magnetometer': None, 'warnings': list, 'thermal': False, 'observations': 0,
-              'carried': list, 'saved_to': None, 'limit': math.nan}
+    __slots__ = ('calibration', 'verdict', 'refusal', 'gyro', 'magnetometer', 'warnings',
+                 'thermal', 'observations', 'carried', 'saved_to', 'limit', 'history', 'notes',
+                 'cause')
+
+    def __init__(self, calibration=None, verdict=None, refusal=None, gyro=None,
+                 magnetometer=None, warnings=None, thermal=False, observations=0, carried=None,
+                 saved_to=None, limit=math.nan, history=None, notes=None, cause=None):
+        self.calibration, self.verdict, self.refusal = calibration, verdict, refusal
+        self.gyro, self.magnetometer = gyro, magnetometer
+        self.warnings = [] if warnings is None else warnings
+        self.thermal, self.observations = thermal, observations
+        self.carried = [] if carried is None else carried
+        self.saved_to, self.limit, self.history = saved_to, limit, history
+        self.notes = [] if notes is None else notes
+        self.cause = cause
+
+    def replace(self, **changes):
+        """Return a copy with ``changes``."""
+        fields = {name: getattr(self, name) for name in self.__slots__}
+        fields.update(changes)
+        return Outcome(**fields)
+
+    def __repr__(self):
+        return f'Outcome(refusal={self.refusal!r}, observations={self.observations})'
 
     @property
     def accepted(self):
@@ -149,8 +102,7 @@ class Outcome(Record):
 
     def refuse(self, reason):
         """Return this outcome refused for ``reason`` (the other sensors then not fitted)."""
-        return self.replace(refusal=reason, gyro=_not_fitted(self.gyro),
-                            magnetometer=_not_fitted(self.magnetometer))
+        return refused(reason, outcome=self)
 
     def sensors(self, accel_status=None):
         """Return the per-sensor status object (``fit --json`` and the node's ``sensors``)."""
@@ -190,6 +142,25 @@ class Outcome(Record):
         return msg
 
 
+def refused(reason, imu=None, outcome=None, words=FIT, **fields):
+    """
+    Return a refused :class:`Outcome`: the one way every door makes one.
+
+    :param reason: why (the door's words).
+    :param imu: the session's :class:`RecordingImu` or :class:`CollectedImu` (says whether
+        the gyroscope and magnetometer had data), or None (no other sensor).
+    :param outcome: an outcome to refuse (its calibration kept for the message; its other
+        sensors become not fitted), or None.
+    :param words: the door's :class:`~.settings.Words` (why a sensor is absent).
+    :param fields: other :class:`Outcome` fields (``observations``, ``limit``, ...).
+    """
+    if outcome is not None:
+        return outcome.replace(refusal=reason, gyro=_not_fitted(outcome.gyro),
+                               magnetometer=_not_fitted(outcome.magnetometer), **fields)
+    gyro, magnetometer = (imu or NoImu()).not_fitted(words)
+    return Outcome(refusal=reason, gyro=gyro, magnetometer=magnetometer, **fields)
+
+
 def _not_fitted(outcome):
     """Return the outcome of a sensor whose accelerometer calibration was refused."""
     if outcome is None or outcome.status in ('absent', 'not collected'):
@@ -197,7 +168,27 @@ def _not_fitted(outcome):
     return SensorOutcome(outcome.sensor, 'not fitted', NOT_FITTED, unit=outcome.unit)
 
 
+def _unfitted(sensor, present, absent_reason, unit):
+    if not present:
+        return absent(sensor, absent_reason, unit)
+    return SensorOutcome(sensor, 'not fitted', NOT_FITTED, unit=unit)
+
+
 # -- the other two sensors ---------------------------------------------------------------
+
+class NoImu:
+    """A session without a gyroscope or magnetometer (the door's words say why)."""
+
+    def solve(self, cal, settings):
+        """Return (gyro, magnetometer): both absent."""
+        return self.not_fitted(settings.words)
+
+    @staticmethod
+    def not_fitted(words=FIT):
+        """Return (gyro, magnetometer): both absent."""
+        w = words
+        return absent('gyroscope', w.no_gyro, 'relative'), absent('magnetometer', w.no_mag, 'uT')
+
 
 class RecordingImu:
     """
@@ -213,61 +204,90 @@ class RecordingImu:
     def solve(self, cal, settings):
         """Fit both beside the accelerometer calibration ``cal``; return (gyro, magnetometer)."""
         from ..core.outcomes import solve_gyro, solve_magnetometer
-        return (solve_gyro(self.samples, self.windows, cal, settings.max_gyro_error),
-                solve_magnetometer(self.samples, self.windows, cal, settings.max_mag_error,
-                                   settings.field_uT))
+        s, w = self.samples, settings.words
+        gyro = absent('gyroscope', w.no_gyro, 'relative') if s.gyro is None else \
+            solve_gyro(s, self.windows, cal, settings.max_gyro_error, limit_name=w.gyro_limit)
+        if s.mag is None or not s.mag_rows.any():
+            mag = absent('magnetometer', w.no_mag if s.mag is None else w.mag_unusable, 'uT')
+        else:
+            mag = solve_magnetometer(s, self.windows, cal, settings.max_mag_error,
+                                     settings.field_uT, limit_name=w.mag_limit)
+        return gyro, mag
 
-    def not_fitted(self):
+    def not_fitted(self, words=FIT):
         """Return (gyro, magnetometer) when no accelerometer calibration was accepted."""
-        s = self.samples
-        return (_unfitted('gyroscope', s.gyro is not None, 'the data have no gx gy gz',
-                          'relative'),
-                _unfitted('magnetometer', s.mag is not None, 'the data have no mx my mz',
-                          'uT'))
+        s, w = self.samples, words
+        return (_unfitted('gyroscope', s.gyro is not None, w.no_gyro, 'relative'),
+                _unfitted('magnetometer', s.mag is not None, w.no_mag, 'uT'))
 
 
 class CollectedImu:
     """
-    The gyroscope and magnetometer a live session kept (``core.collector.ImuCollector``).
+    The gyroscope and magnetometer a live session kept (``core.collector``).
 
-    :param collector: the ImuCollector (or None: neither was collected).
+    :param collector: an ``ImuCollector`` or its ``ImuSnapshot`` (None: neither was
+        collected).
     :param windows: the session's WindowSet (their times place them in the samples).
     """
 
     def __init__(self, collector, windows):
-        self.collector, self.windows = collector, windows
+        snapshot = getattr(collector, 'snapshot', None)
+        self.collector = snapshot() if snapshot is not None else collector
+        self.windows = windows
 
     def solve(self, cal, settings):
         """Fit both beside ``cal``; a failing fit is reported, never raised."""
         if self.collector is None:
-            return self.not_fitted()
+            return self.not_fitted(settings.words)
         try:
-            return self.collector.solve(self.windows, cal, settings.max_gyro_error,
-                                        settings.max_mag_error, settings.field_uT)
+            return self._gyro(cal, settings), self._magnetometer(cal, settings)
         except (CalibrationError, InputError, ValueError, np.linalg.LinAlgError) as err:
             return (SensorOutcome('gyroscope', 'insufficient', f'fit failed: {err}',
                                   unit='relative'),
                     SensorOutcome('magnetometer', 'insufficient', f'fit failed: {err}',
                                   unit='uT'))
 
-    def not_fitted(self):
+    def _gyro(self, cal, settings):
+        from ..core.collector import ImuCollector
+        from ..core.outcomes import solve_gyro
+        snap, w = self.collector, settings.words
+        raw = snap.raw
+        if snap.capacity <= 0:
+            return SensorOutcome('gyroscope', 'not collected', w.gyro_not_kept, unit='relative')
+        if raw is None or raw.gyro is None:
+            return absent('gyroscope', w.no_gyro if raw is not None else w.no_samples,
+                          'relative')
+        gyro = solve_gyro(raw, ImuCollector.windows_in(raw.t, self.windows), cal,
+                          settings.max_gyro_error, limit_name=w.gyro_limit)
+        if gyro.status == 'insufficient' and snap.ring_full:
+            gyro.reason += w.ring_short.format(seconds=raw.t[-1] - raw.t[0])
+        return gyro
+
+    def _magnetometer(self, cal, settings):
+        from ..core.collector import ImuCollector
+        from ..core.outcomes import solve_magnetometer
+        snap, w = self.collector, settings.words
+        mags = snap.mags
+        if snap.max_mag <= 0:
+            return SensorOutcome('magnetometer', 'not collected', w.mag_not_kept, unit='uT')
+        if mags is None:
+            return absent('magnetometer', w.mag_unusable if snap.mag_received else w.no_mag,
+                          'uT')
+        return solve_magnetometer(mags, ImuCollector.windows_in(mags.t, self.windows), cal,
+                                  settings.max_mag_error, settings.field_uT,
+                                  limit_name=w.mag_limit)
+
+    def not_fitted(self, words=FIT):
         """Return (gyro, magnetometer) when no accelerometer calibration was accepted."""
-        c = self.collector
-        return (_unfitted('gyroscope', c is not None and c.gyro_seen,
-                          'no angular velocity received', 'relative'),
-                _unfitted('magnetometer', c is not None and c.mag_received > 0,
-                          'no magnetometer sample received', 'uT'))
-
-
-def _unfitted(sensor, present, absent_reason, unit):
-    if not present:
-        return SensorOutcome(sensor, 'absent', absent_reason, unit=unit)
-    return SensorOutcome(sensor, 'not fitted', NOT_FITTED, unit=unit)
+        c, w = self.collector, words
+        return (_unfitted('gyroscope', c is not None and c.gyro_seen, w.no_gyro, 'relative'),
+                _unfitted('magnetometer', c is not None and c.mag_received > 0, w.no_mag,
+                          'uT'))
 
 
 # -- the decision --------------------------------------------------------------------------
 
-def thermal_wanted(mode, temps, band_width_c, words=CLI):
+def thermal_wanted(mode, temps, band_width_c, words=FIT):
     """
     Decide whether to fit temperature tables.
 
@@ -294,17 +314,18 @@ def fit_and_accept(obs, settings, imu=None):
 
     :param obs: :class:`~.windows.Observations` of the session.
     :param settings: :class:`Settings` of the door.
-    :param imu: :class:`RecordingImu` or :class:`CollectedImu` (None: no other sensor).
+    :param imu: :class:`RecordingImu`, :class:`CollectedImu` or :class:`NoImu` (None: no
+        other sensor).
     :return: :class:`Outcome` (``refusal`` says why when it is not accepted).
     :raises InputError: the input cannot be fitted as given (unknown method, non-finite
-        observations, temperature tables without temperatures): the door's usage error.
+        observations, temperature tables without temperatures): the door's usage error
+        (``finish.finish_session`` makes it a refusal with ``cause`` 'input').
     """
     from ..core.accelerometer.fit import calibrate
     s, words = settings, settings.words
+    imu = imu or NoImu()
     out = Outcome(observations=len(obs), limit=s.max_predicted_error)
-    out.gyro, out.magnetometer = imu.not_fitted() if imu is not None else (
-        _unfitted('gyroscope', False, 'no gyroscope data', 'relative'),
-        _unfitted('magnetometer', False, 'no magnetometer data', 'uT'))
+    out.gyro, out.magnetometer = imu.not_fitted(words)
     if not len(obs):
         out.refusal = words.no_windows
         return out
@@ -337,10 +358,9 @@ def fit_and_accept(obs, settings, imu=None):
         out.refusal = refusal
         return out
     out.warnings += verdict.warnings
-    if imu is not None:
-        from ..core.outcomes import store
-        out.gyro, out.magnetometer = imu.solve(cal, s)
-        store(cal, out.gyro, out.magnetometer)
+    from ..core.outcomes import store
+    out.gyro, out.magnetometer = imu.solve(cal, s)
+    store(cal, out.gyro, out.magnetometer)
     return out
 
 
@@ -372,14 +392,14 @@ def _residual_refusal(cal, obs, s, thermal):
     if expected is None or cal.residual_rms <= s.max_residual_ratio * expected:
         return None
     words = s.words
+    name = f', {words.residual_limit}' if words.residual_limit else ''
     hint = ''
     if not thermal and thermal_wanted('auto', obs.temps, s.band_width_c):
         hint = f'; the windows fill two temperature bands: {words.thermal_hint}'
     return (f'gravity-norm residual {cal.residual_rms:.4f} {words.unit} is '
             f'{cal.residual_rms / expected:.0f}x the expected window noise {expected:.4f} '
-            f'{words.unit} (limit {s.max_residual_ratio:g}x, {words.residual_limit}): the sensor '
-            f'moved during the poses or the model does not fit this sensor{hint}'
-            f'{words.follow_up}')
+            f'{words.unit} (limit {s.max_residual_ratio:g}x{name}): the sensor moved during '
+            f'the poses or the model does not fit this sensor{hint}{words.follow_up}')
 
 
 def _drop_implausible_gyro_bias(cal):

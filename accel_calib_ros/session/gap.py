@@ -3,17 +3,15 @@ The model-gap check after a calibration: what the data show that the model does 
 
 The calibration node runs it after each ``~/calibrate`` (off the response's path) and
 publishes the result on ``~/status``; ``modelgap.diagnose_windows`` does the work on the
-session's windows. Effects the calibration already models (the temperature tables when
-it has usable bands) are not reported as missing.
+session's windows. Effects the calibration already models (those the temperature tables
+model, ``Effect.modelled_by_thermal_tables``, when it has usable bands) are not reported
+as missing.
 """
 
 import numpy as np
 
 from ..core.errors import CalibrationError, InputError
 from ..core.finite import finite_or_none
-
-THERMAL_EFFECTS = ('temperature_bias', 'temperature_scale')
-"""The effects the temperature-band tables model."""
 
 
 def model_gap(windows, baseline, gravity, rate_hz=None, thermal_bands=None, method=None):
@@ -32,6 +30,7 @@ def model_gap(windows, baseline, gravity, rate_hz=None, thermal_bands=None, meth
         None without windows.
     """
     from ..modelgap import diagnose_windows
+    from ..modelgap.effects import EFFECTS
     if windows is None or not len(windows):
         return None
     try:
@@ -40,7 +39,7 @@ def model_gap(windows, baseline, gravity, rate_hz=None, thermal_bands=None, meth
     except (CalibrationError, InputError, ValueError, np.linalg.LinAlgError) as err:
         return {'missing_effects': [], 'note': f'skipped: {err}'}
     steps = [s for s in report.steps
-             if not (thermal_bands and s['effect'] in THERMAL_EFFECTS)]
+             if not (thermal_bands and EFFECTS[s['effect']].modelled_by_thermal_tables)]
     gap = {'baseline': baseline, 'missing_effects': [s['effect'] for s in steps],
            'gap_before': finite_or_none(report.gap_before, 3),
            'gap_after': finite_or_none(report.gap_after, 3), 'note': ''}

@@ -8,20 +8,19 @@ time (:meth:`Window.from_detector` reads their dicts); ``accel-calib fit`` detec
 all at once (:meth:`WindowSet.from_static`). A :class:`WindowSet` holds them as arrays:
 the weights (samples, capped at a few seconds), the pooled noise, the gyro bias they
 show, and :class:`Observations`, what :func:`~accel_calib_ros.session.accept.fit_and_accept`
-fits. numpy only.
+fits. numpy only; plain records (a NamedTuple, ``__slots__`` classes) for start-up.
 """
 
 import math
+from typing import NamedTuple, Optional
 
 import numpy as np
-
-from ..core.record import Record
 
 DEFAULT_RATE_HZ = 100.0
 """Rate assumed for the weight cap while the sample rate is not known yet, Hz."""
 
 
-class Window(Record):
+class Window(NamedTuple):
     """
     One static window: a pose held still.
 
@@ -35,8 +34,14 @@ class Window(Record):
     :param rate_hz: sample rate inside it, Hz (NaN: the session's rate applies).
     """
 
-    FIELDS = {'mean': None, 'scatter': None, 'count': 0, 't_start': math.nan,
-              't_stop': math.nan, 'temp': math.nan, 'gyro_mean': None, 'rate_hz': math.nan}
+    mean: np.ndarray
+    scatter: np.ndarray
+    count: int = 0
+    t_start: float = math.nan
+    t_stop: float = math.nan
+    temp: float = math.nan
+    gyro_mean: Optional[np.ndarray] = None
+    rate_hz: float = math.nan
 
     @property
     def t_mid(self):
@@ -67,7 +72,7 @@ class Window(Record):
                    rate_hz=float(d.get('rate_hz', math.nan)))
 
 
-class Observations(Record):
+class Observations:
     """
     What a fit is given: one row per window (or per sample in ``fit --mode samples``).
 
@@ -78,8 +83,11 @@ class Observations(Record):
     :param gyro_means: (N, 3) rad/s (NaN rows without a gyro), or None.
     """
 
-    FIELDS = {'readings': None, 'weights': None, 'temps': None, 'noise': None,
-              'gyro_means': None}
+    __slots__ = ('readings', 'weights', 'temps', 'noise', 'gyro_means')
+
+    def __init__(self, readings, weights=None, temps=None, noise=None, gyro_means=None):
+        self.readings, self.weights, self.temps = readings, weights, temps
+        self.noise, self.gyro_means = noise, gyro_means
 
     def __len__(self):
         return len(self.readings)
@@ -98,7 +106,7 @@ class Observations(Record):
         return max(value, floor) if math.isfinite(value) else None
 
 
-class WindowSet(Record):
+class WindowSet:
     """
     Static windows as arrays, one row per window, in the order they were held.
 
@@ -108,24 +116,25 @@ class WindowSet(Record):
     :param t_start: (W,) s; ``t_stop``: (W,) s.
     :param temp: (W,) °C (NaN where unknown).
     :param gyro_mean: (W, 3) rad/s (NaN rows without the rate), or None when none has it.
-    :param rate_hz: (W,) the rate inside each window, Hz (NaN: the session's).
+    :param rate_hz: (W,) the rate inside each window, Hz (NaN: the session's), or None.
     """
 
-    FIELDS = {'mean': None, 'scatter': None, 'count': None, 't_start': None, 't_stop': None,
-              'temp': None, 'gyro_mean': None, 'rate_hz': None}
+    __slots__ = ('mean', 'scatter', 'count', 't_start', 't_stop', 'temp', 'gyro_mean',
+                 'rate_hz')
 
-    def _check(self):
-        self.mean = np.asarray(self.mean, float).reshape(-1, 3)
+    def __init__(self, mean, scatter, count, t_start, t_stop, temp, gyro_mean=None,
+                 rate_hz=None):
+        self.mean = np.asarray(mean, float).reshape(-1, 3)
         n = len(self.mean)
-        self.scatter = np.asarray(self.scatter, float).reshape(n, 3)
-        self.count = np.asarray(self.count, float).reshape(n)
-        self.t_start = np.asarray(self.t_start, float).reshape(n)
-        self.t_stop = np.asarray(self.t_stop, float).reshape(n)
-        self.temp = np.asarray(self.temp, float).reshape(n)
-        if self.gyro_mean is not None:
-            self.gyro_mean = np.asarray(self.gyro_mean, float).reshape(n, 3)
-        self.rate_hz = np.full(n, np.nan) if self.rate_hz is None else \
-            np.asarray(self.rate_hz, float).reshape(n)
+        self.scatter = np.asarray(scatter, float).reshape(n, 3)
+        self.count = np.asarray(count, float).reshape(n)
+        self.t_start = np.asarray(t_start, float).reshape(n)
+        self.t_stop = np.asarray(t_stop, float).reshape(n)
+        self.temp = np.asarray(temp, float).reshape(n)
+        self.gyro_mean = None if gyro_mean is None else \
+            np.asarray(gyro_mean, float).reshape(n, 3)
+        self.rate_hz = np.full(n, np.nan) if rate_hz is None else \
+            np.asarray(rate_hz, float).reshape(n)
 
     def __len__(self):
         return len(self.mean)
@@ -214,19 +223,3 @@ class WindowSet(Record):
                          self.t_start[index], self.t_stop[index], self.temp[index],
                          None if self.gyro_mean is None else self.gyro_mean[index],
                          self.rate_hz[index])
-
-    def ranges_in(self, t):
-        """
-        Map the windows to sample ranges of times ``t`` (the gyroscope and magnetometer fits).
-
-        :returns: an object with ``start`` and ``stop`` (int arrays) for the windows that
-            lie inside ``t`` (with at least one sample).
-        """
-        from types import SimpleNamespace
-        t = np.asarray(t, float)
-        if not len(t) or not len(self):
-            return SimpleNamespace(start=np.zeros(0, int), stop=np.zeros(0, int))
-        start = np.searchsorted(t, self.t_start, side='left')
-        stop = np.searchsorted(t, self.t_stop, side='right')
-        keep = (stop > start) & (self.t_start >= t[0]) & (self.t_stop <= t[-1])
-        return SimpleNamespace(start=start[keep], stop=stop[keep])

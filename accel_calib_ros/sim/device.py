@@ -1,5 +1,5 @@
 """
-A virtual MPU9250 behind a microcontroller, streaming spec frames on a pseudo-terminal.
+A virtual MPU-9250 behind a microcontroller, streaming spec frames on a pseudo-terminal.
 
 Stands in for the hardware in the demo and the tests: open the printed slave path (or
 the ``--link`` symlink) as the serial port. The sensor follows a scripted sequence of
@@ -16,8 +16,10 @@ the samples are never sent), ``--unplug-at AT`` unplugs it on a schedule (as SIG
 ``--report FILE`` writes what happened as JSON (samples made, frames written whole, and
 the samples never sent: unplugged, stalled, pty full).
 
-``--gyro-errors`` gives the gyroscope a datasheet-sized scale and misalignment (the rates
-on the wire still integrate to the scripted turns) and ``--magnetometer`` an AK8963-like
+``--chip`` makes it another chip of ``dataio.wire.chips`` (its WHO_AM_I in the info frame,
+its temperature formula on the wire). ``--gyro-errors`` gives the gyroscope a datasheet-sized
+scale and misalignment (the rates on the wire still integrate to the scripted turns) and
+``--magnetometer`` an AK8963-like
 magnetometer in a 48 µT, 60° dip field: its samples (µT, accelerometer frame, NaN
 between its 100 Hz samples) are in :attr:`VirtualSensor.last_mag` after each
 :meth:`VirtualSensor.counts`; the frames sent are still version 1, without them (frame
@@ -35,13 +37,25 @@ import numpy as np
 
 from .device_port import Pty, Wire
 from ..core.constants import G0
-from ..dataio.wire import ACCEL_LSB_PER_G, Converter, GYRO_LSB_PER_DPS
+from ..dataio.wire import BY_KEY, Converter, DEFAULT_CHIP
 
 CHUNK_S = 10.0
 """Seconds of samples simulated at a time once the script has ended."""
 INFO_PERIOD_S = 1.0
 """The info frame is sent at each plug-in and then once a second, as the firmware does."""
-EFFECTS = ('scale_nonlinearity', 'temperature_bias', 'temperature_scale', 'bias_drift')
+
+
+def device_effects():
+    """
+    Return the library effects the virtual device can switch on, in library order.
+
+    Those a random sensor can be given (``Effect.sensor_range``) whose simulation needs no
+    history of the session (``Effect.on_device``): the pose held after the script is
+    measured sample block by sample block.
+    """
+    from ..modelgap.effects import EFFECTS
+    return tuple(name for name, effect in EFFECTS.items()
+                 if effect.sensor_range is not None and effect.on_device)
 
 
 class DeviceError(Exception):
@@ -127,11 +141,16 @@ def add_arguments(parser):
     parser.add_argument('--temp-ramp', type=float, nargs=2, metavar=('START', 'END'),
                         help='temperature ramp over the script, °C')
     parser.add_argument('--effects', default='',
-                        help='comma-separated extra sensor effects: ' + ', '.join(EFFECTS))
-    parser.add_argument('--accel-range', type=int, default=2, choices=sorted(ACCEL_LSB_PER_G),
+                        help='comma-separated extra sensor effects: '
+                             + ', '.join(device_effects()))
+    parser.add_argument('--chip', choices=tuple(BY_KEY), default=DEFAULT_CHIP.key,
+                        help='the chip it is (its WHO_AM_I in the info frame, its temperature '
+                             'formula; default %(default)s)')
+    parser.add_argument('--accel-range', type=int, default=2,
+                        choices=sorted(DEFAULT_CHIP.accel_lsb_per_g),
                         help='accelerometer full scale, ±g (default 2)')
     parser.add_argument('--gyro-range', type=int, default=250,
-                        choices=sorted(GYRO_LSB_PER_DPS),
+                        choices=sorted(DEFAULT_CHIP.gyro_lsb_per_dps),
                         help='gyroscope full scale, ±°/s (default 250)')
     parser.add_argument('--gravity', type=_positive, default=G0, help='gravity, m/s²')
     parser.add_argument('--noise-from', metavar='ALLAN.json',
@@ -227,9 +246,10 @@ class VirtualSensor:
         from .sensor import mpu9250_like
         self.rng = np.random.default_rng(args.seed)
         effects = [e for e in args.effects.split(',') if e]
+        known = device_effects()
         for name in effects:
-            if name not in EFFECTS:
-                raise DeviceError(f'unknown effect {name!r}: use {", ".join(EFFECTS)}')
+            if name not in known:
+                raise DeviceError(f'unknown effect {name!r}: use {", ".join(known)}')
         self.sensor = mpu9250_like(self.rng, rate_hz=args.rate, effects=effects)
         if getattr(args, 'noise_from', None):
             from ..core.errors import InputError
@@ -243,7 +263,11 @@ class VirtualSensor:
         self._imu_parts(args)
         self.args = args
         self.directions = _directions(args, self.rng)
-        self.converter = Converter(args.accel_range, args.gyro_range)
+        self.chip = BY_KEY[getattr(args, 'chip', DEFAULT_CHIP.key)]
+        try:
+            self.converter = Converter(args.accel_range, args.gyro_range, chip=self.chip)
+        except ValueError as err:
+            raise DeviceError(f'{self.chip.name}: {err}') from None
         self.t_offset = 0.0
         self._stream = None
         self._played = False
@@ -252,12 +276,15 @@ class VirtualSensor:
         self._field = None          # field in the body frame at the last sample, µT
 
     def _imu_parts(self, args):
-        """Gyroscope errors and magnetometer from generators of their own (issue 19)."""
+        """Gyroscope errors and magnetometer from generators of their own."""
         from .sensor import ak8963_like, with_gyro_errors
         if getattr(args, 'gyro_errors', False):
             self.sensor = with_gyro_errors(self.sensor,
                                            np.random.default_rng([args.seed, 19, 1]))
         if getattr(args, 'magnetometer', False):
+            chip = BY_KEY[getattr(args, 'chip', DEFAULT_CHIP.key)]
+            if chip.magnetometer is None:
+                raise DeviceError(f'--magnetometer: the {chip.name} has no magnetometer')
             self.sensor.magnetometer = ak8963_like(np.random.default_rng([args.seed, 19, 2]))
         self._mag_rng = np.random.default_rng([args.seed, 19, 3])
 

@@ -14,9 +14,9 @@ import tty
 
 import numpy as np
 
-from ..dataio.wire import encode_ascii_line, encode_frame, encode_frame_v2
-from ..dataio.wire.conversion import MagConverter
-from ..dataio.wire.info import encode_info, encode_info_v2, InfoFrame, MAG_ABSENT, MAG_AK8963
+from ..dataio.wire import (BY_KEY, DEFAULT_CHIP, encode_ascii_line, encode_frame,
+                           encode_frame_v2, encode_info, encode_info_v2, InfoFrame, MAG_ABSENT,
+                           MAG_AK8963, MagConverter)
 
 
 class Wire:
@@ -43,7 +43,9 @@ class Wire:
         self.frames_damaged = 0
         self.ranges = (args.accel_range, args.gyro_range)
         self.rate_hz = min(max(int(round(args.rate)), 1), 0xFFFF)
-        self.mag_converter = MagConverter()
+        self.chip = BY_KEY[getattr(args, 'chip', DEFAULT_CHIP.key)]
+        magnetometer = self.chip.magnetometer or DEFAULT_CHIP.magnetometer
+        self.mag_converter = MagConverter(magnetometer=magnetometer)
         self.last_sizes = []        # bytes of each frame of the last encode()
 
     def whole_frames(self, written):
@@ -59,13 +61,14 @@ class Wire:
         """
         Return the info frame a firmware would send (none in the ASCII format).
 
-        A virtual MPU-9250 that streams; with a magnetometer, an AK8963 whose factory
-        adjustment is neutral (ASA 128), so the driver converts its blocks at once.
+        A virtual chip (``--chip``: its WHO_AM_I) that streams; with a magnetometer, one
+        whose factory adjustment is neutral (ASA 128), so the driver converts its blocks at
+        once.
         """
         if self.ascii:
             return b''
-        info = InfoFrame(0, 0x71, self.ranges[0], self.ranges[1], self.rate_hz, 1, 1_000_000,
-                         (2, 0), self.version, MAG_AK8963 if has_mag else MAG_ABSENT,
+        info = InfoFrame(0, self.chip.who_am_i, self.ranges[0], self.ranges[1], self.rate_hz, 1,
+                         1_000_000, (2, 0), self.version, MAG_AK8963 if has_mag else MAG_ABSENT,
                          (128, 128, 128) if has_mag else (0, 0, 0))
         return encode_info_v2(info) if self.version == 2 else encode_info(info)
 

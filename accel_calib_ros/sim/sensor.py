@@ -7,6 +7,7 @@ The forward model, for true specific force ``a`` (m/s², body frame), temperatur
     s      = diag(1 + scale_tempco * (theta - temp_ref)) @ T @ a
     raw_i  = s_i + nonlinearity_i * s_i**2 / g0
              + bias_i + bias_tempco_i * (theta - temp_ref) + bias_drift_i * t
+             + sum over library_effects (columns(a, theta - temp_ref, t) @ params)_i
              + w_i(t) + noise, then quantised to the ADC step.
 
 ``theta`` is the die temperature: the reported temperature itself, or, with
@@ -26,6 +27,11 @@ the sensor's step (``temp_lsb``).
 ``T`` is upper triangular (scale times non-orthogonality, Sun & Xu eq. 1-4).
 Each physical effect has its own field and is off when that field is zero, so
 effects can be switched on one at a time (the model-gap workflow relies on it).
+An effect of the model-gap library without a field of its own acts through its own
+design columns (``library_effects``: the fit's definition is the simulator's). Which
+field holds which library effect, its datasheet size and how a random sensor draws it
+are the effect's own declarations (``modelgap.effect.Effect``): ``with_datasheet_effect``
+and ``mpu9250_like`` loop over the library.
 
 The gyroscope and the magnetometer (interface.md §9 and §10), for the true body rate
 ``w`` (rad/s) and the local Earth field ``f`` in the body (accelerometer) frame (µT)::
@@ -45,9 +51,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..core.constants import G0
+from ..dataio.wire.chips import AK8963, DEFAULT_CHIP
+from ..modelgap.effects import EFFECTS
 
 
-MPU9250_LSB = G0 / 16384.0
+MPU9250_LSB = G0 / DEFAULT_CHIP.accel_lsb_per_g[2]
 """Accelerometer ADC step at ±2 g, m/s² per count."""
 
 
@@ -90,6 +98,8 @@ class SensorModel:
     :param bias_curve: (temps (M,) °C, offsets (M, 3) m/s²): an offset against the die
         temperature beyond the polynomial terms, linear between its points (a curve no
         polynomial holds), or None.
+    :param library_effects: ((Effect, params), ...): model-gap library effects without a
+        field here, each adding ``Effect.apply(params, a, theta - temp_ref, t)`` (empty: none).
     """
 
     T: np.ndarray = field(default_factory=lambda: np.eye(3))
@@ -117,6 +127,7 @@ class SensorModel:
     temp_noise_std: float = 0.0
     temp_lsb: float = 0.0
     bias_curve: Optional[tuple] = None
+    library_effects: tuple = ()
 
     def __post_init__(self):
         self.T = np.asarray(self.T, dtype=float).reshape(3, 3)
@@ -128,6 +139,7 @@ class SensorModel:
             setattr(self, name, _vec3(getattr(self, name)))
         self.thermal_lag_s = float(self.thermal_lag_s)
         self.gradient_tau_s = float(self.gradient_tau_s)
+        self.library_effects = tuple(self.library_effects)
 
     def with_effects(self, **fields):
         """Return a copy with some fields replaced (switch effects on or off)."""
@@ -159,6 +171,8 @@ class SensorModel:
             raw = raw + np.column_stack([np.interp(theta, temps, offsets[:, i])
                                          for i in range(3)])
         raw = raw + time[:, None] * self.bias_drift
+        for effect, params in self.library_effects:
+            raw = raw + effect.apply(params, a, dtheta, time, G0)
         return raw
 
     def measure(self, true_accel, rng, temp=None, t=None, offset=None):
@@ -183,21 +197,23 @@ def mpu9250_like(rng, rate_hz=100.0, effects=()):
     Scale ±3 %, cross-axis ±2 %, zero-g offset ±60 mg (x, y) / ±80 mg (z), noise
     300 µg/√Hz (the datasheet's one-sided density) over a bandwidth of rate/2, i.e.
     sample std 300 µg·√(rate/2) and Allan N = 212 µg/√Hz (``core.allan``), ±2 g
-    quantisation. Effects beyond the
-    calibration model are off unless named in ``effects``: ``scale_nonlinearity``
-    (±0.5 %), ``temperature_bias`` (±1.5 mg/°C), ``temperature_scale``
-    (±0.026 %/°C), ``bias_drift`` (±0.2 mg/min), ``temperature_lag`` (the offset's
-    ±1.5 mg/°C driven by a die temperature 1-5 minutes behind the reported one),
-    ``bias_random_walk`` (±0.05-0.2 mg/√s). ``nonorthogonality`` is always on (it is part
-    of T); pass ``orthogonal=True`` semantics by zeroing it yourself.
+    quantisation. The model-gap library's effects beyond the calibration model are off
+    unless named in ``effects``: each then gets a random size per axis in its
+    ``Effect.sensor_range`` with random signs (``scale_nonlinearity`` 0.2-0.5 %,
+    ``temperature_bias`` 0.5-1.5 mg/°C, ``temperature_scale`` 0.001-0.026 %/°C,
+    ``bias_drift`` 0.5-2 mg/min, ``temperature_lag`` the offset's 0.5-1.5 mg/°C driven by a
+    die temperature 1-5 minutes behind the reported one, ``bias_random_walk``
+    0.05-0.2 mg/√s). ``nonorthogonality`` is always on (it is part of T); pass
+    ``orthogonal=True`` semantics by zeroing it yourself.
+
+    The random draws: the library's first effects (``Effect.drawn_always``) are drawn in
+    every call, asked for or not, then the others asked for, in library order; so a
+    seeded sensor stays the same when effects are added to the library.
 
     :returns: SensorModel.
     """
     def pm(scale):
         return rng.uniform(-1, 1, 3) * scale
-
-    def signed(low, high):
-        return rng.uniform(low, high, 3) * rng.choice([-1.0, 1.0], 3)
 
     T = np.diag(1.0 + pm(0.03))
     T[np.triu_indices(3, 1)] = pm(0.02)
@@ -210,28 +226,19 @@ def mpu9250_like(rng, rate_hz=100.0, effects=()):
     # keep their accelerometer draws).
     model.gyro_bias = np.random.default_rng(
         int(abs(model.bias[0]) * 1e12) % (2 ** 32)).uniform(-1, 1, 3) * np.radians(3.0)
-    magnitudes = {
-        'scale_nonlinearity': ('nonlinearity', signed(0.002, 0.005)),
-        'temperature_bias': ('bias_tempco', signed(0.5e-3, 1.5e-3) * G0),
-        'temperature_scale': ('scale_tempco', signed(0.1e-4, 2.6e-4)),
-        'bias_drift': ('bias_drift', signed(0.5e-3, 2e-3) * G0 / 60.0),
-    }
-    for name in effects:
-        if name in ('nonorthogonality', 'temperature_lag', 'bias_random_walk'):
-            continue
-        attr, value = magnitudes[name]
-        setattr(model, attr, value)
+    asked = [EFFECTS[name] for name in effects]
+    drawn = [(effect, effect.draw(rng)) for effect in EFFECTS.values() if effect.drawn_always]
+    for effect, size in drawn:
+        if effect in asked:
+            effect.hide_in(model, size)
     # Drawn only when asked, after the others: seeded sessions without them keep their draws.
-    if 'temperature_lag' in effects:
-        if 'temperature_bias' not in effects:
-            model.bias_tempco = signed(0.5e-3, 1.5e-3) * G0
-        model.thermal_lag_s = float(rng.uniform(60.0, 300.0))
-    if 'bias_random_walk' in effects:
-        model.bias_random_walk = signed(0.05e-3, 0.2e-3) * G0
+    for effect in EFFECTS.values():
+        if effect in asked and effect.sensor_range is not None and not effect.drawn_always:
+            effect.draw_into(model, rng, asked)
     return model
 
 
-AK8963_LSB_UT = 0.15
+AK8963_LSB_UT = AK8963.ut_per_count[16]
 """AK8963 16-bit output step, µT per count."""
 
 
@@ -361,41 +368,24 @@ def measure_mag(mag, field_body, t, dt, rng):
     return raw
 
 
-DATASHEET = {
-    'nonorthogonality': 0.02,              # cross-axis sensitivity, fraction
-    'scale_nonlinearity': 0.005,           # fraction of reading at 1 g
-    'temperature_bias': 1.5e-3 * G0,       # m/s² per °C
-    'temperature_scale': 2.6e-4,           # 1 per °C
-    'bias_drift': 1e-3 * G0 / 60.0,        # m/s² per s (1 mg/min; not in the datasheet)
-    'temperature_lag': 1.5e-3 * G0,        # m/s² per °C of the die temperature
-    'bias_random_walk': 0.1e-3 * G0,       # m/s² per √s (not in the datasheet)
-}
-"""MPU-9250 datasheet magnitude of each effect of the model-gap library."""
-
-THERMAL_LAG_S = 120.0
-"""Die temperature lag of ``with_datasheet_effect(..., 'temperature_lag')``, s."""
-
-
 def with_datasheet_effect(sensor, effect, rng, scale=1.0):
     """
-    Return a copy of ``sensor`` with one effect at ``scale`` x its datasheet size.
+    Return a copy of ``sensor`` with one library effect at ``scale`` x its datasheet size.
 
-    The three axes get random signs and sizes of (1, 0.75, 0.5) x the magnitude. For
+    The three axes get random signs and sizes of (1, 0.75, 0.5) x the magnitude
+    (``Effect.datasheet``; ``Effect.hide_in`` puts it in the copy). For
     ``nonorthogonality`` T becomes diagonal plus the hidden off-diagonal terms, so a
     6-parameter (gn) baseline lacks exactly that effect. ``temperature_lag`` is the
-    offset's temperature coefficient driven by a die temperature ``THERMAL_LAG_S`` behind
-    the reported one (set ``thermal_lag_s`` for another lag).
+    offset's temperature coefficient driven by a die temperature 120 s behind the reported
+    one (set ``thermal_lag_s`` for another lag).
+
+    :param effect: a library name (``modelgap.effects.EFFECTS``).
     """
-    size = scale * DATASHEET[effect] * rng.choice([-1.0, 1.0], 3) * np.array([1.0, 0.75, 0.5])
+    library = EFFECTS[effect]
+    if library.datasheet is None:
+        raise ValueError(f'the simulator cannot show {effect}: it has no datasheet size')
+    size = (scale * library.to_si(library.datasheet) * rng.choice([-1.0, 1.0], 3)
+            * np.array([1.0, 0.75, 0.5]))
     out = replace(sensor, T=sensor.T.copy())
-    if effect == 'nonorthogonality':
-        out.T = np.diag(np.diag(sensor.T))
-        out.T[np.triu_indices(3, 1)] = size
-    else:
-        attr = {'scale_nonlinearity': 'nonlinearity', 'temperature_bias': 'bias_tempco',
-                'temperature_scale': 'scale_tempco', 'bias_drift': 'bias_drift',
-                'temperature_lag': 'bias_tempco', 'bias_random_walk': 'bias_random_walk'}[effect]
-        setattr(out, attr, size)
-        if effect == 'temperature_lag':
-            out.thermal_lag_s = THERMAL_LAG_S
+    library.hide_in(out, size)
     return out

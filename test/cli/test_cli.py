@@ -203,7 +203,7 @@ def test_six_face_session_gn_is_charged_ml_refuses_and_json_is_strict(capsys, tm
     assert run(capsys, 'simulate', '-o', data, '--poses', 'faces', '--orthogonal',
                '--truth', truth)[0] == 0
     # Six faces cannot show whether the axes are orthogonal: gn is charged the datasheet
-    # cross-axis bound and refused at the default limit, saying so (issue 17; it was
+    # cross-axis bound and refused at the default limit, saying so (it was
     # accepted with a 0.003 m/s² prediction before, whatever the sensor).
     code, out, err = run(capsys, 'fit', data, '--method', 'gn', '--json')
     summary = json.loads(out, parse_constant=lambda c: pytest.fail(f'{c} in JSON'))
@@ -223,7 +223,7 @@ def test_six_face_session_gn_is_charged_ml_refuses_and_json_is_strict(capsys, tm
     assert code == 1 and 'orientations' in err
 
 
-# -- issue 8: calibrations a user can stand behind ------------------------------------------
+# -- calibrations a user can stand behind ---------------------------------------------------------
 
 def _cap_directions(max_deg, n, rng):
     """Return ``n`` gravity directions within ``max_deg`` of +z (a tilt-only session)."""
@@ -351,7 +351,7 @@ def test_gyro_bias_is_estimated_and_apply_subtracts_it(capsys, tmp_path):
     assert run(capsys, 'apply', calib, data, '-o', corrected)[0] == 0
     raw = np.genfromtxt(data, delimiter=',', names=True)
     fixed = np.genfromtxt(corrected, delimiter=',', names=True)
-    # The gyro's scale and misalignment are fitted too (issue 19): raw - bias = T fixed.
+    # The gyro's scale and misalignment are fitted too: raw - bias = T fixed.
     gyro_T = json.loads(out)['gyro_T']
     assert gyro_T is not None and np.abs(np.array(gyro_T) - np.eye(3)).max() < 0.01
     raw_rate = np.column_stack([raw[a] for a in ('gx', 'gy', 'gz')])
@@ -454,7 +454,7 @@ def test_gyro_in_the_wrong_unit_does_not_cost_the_calibration(capsys, tmp_path):
 
 def test_apply_uses_the_units_the_fit_recorded_and_refuses_another(capsys, session_csv,
                                                                    tmp_path):
-    """Issue 27: T absorbed the fit's counts conversion; only the same one is right."""
+    """T absorbed the fit's counts conversion; only the same one is right."""
     raw = np.genfromtxt(session_csv, delimiter=',', names=True)
     counts = tmp_path / 'counts.csv'
     rows = np.column_stack([raw['t'], np.column_stack([raw['ax'], raw['ay'], raw['az']])
@@ -479,7 +479,7 @@ def test_apply_uses_the_units_the_fit_recorded_and_refuses_another(capsys, sessi
 
 
 def test_fit_starts_without_numpy_masked_arrays(session_csv):
-    """Issue 27: np.median, np.quantile and np.unique import numpy.ma (10 ms of start-up)."""
+    """np.median, np.quantile and np.unique import numpy.ma (10 ms of start-up)."""
     code = ('import sys\nimport numpy\nlazy = "numpy.ma" not in sys.modules\n'
             'from accel_calib_ros.cli import main\n'
             f'main(["fit", {str(session_csv)!r}])\n'

@@ -96,7 +96,7 @@ def test_fit_of_data_in_wrong_units_is_refused_with_one_line(
     """
     Data scaled by 1e-9: refused at the border (exit 2), naming --units; nothing written.
 
-    (Before issue 17 the fit ran and was refused as implausible only with -o.)
+    (It once ran the fit and refused it as implausible only with -o.)
     """
     import numpy as np
     rows = np.loadtxt(faces_csv, delimiter=',', skiprows=1, usecols=(0, 1, 2, 3))

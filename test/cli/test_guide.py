@@ -8,7 +8,8 @@ from accel_calib_ros.cli.guide import board_drawing
 from accel_calib_ros.cli.guide_session import GuideSession
 from accel_calib_ros.cli.guide_sources import SerialSource
 from accel_calib_ros.core.advice import CANDIDATE_POSES
-from accel_calib_ros.dataio.wire import encode_frame
+from accel_calib_ros.dataio.wire import (encode_frame, encode_frame_v2, encode_info,
+                                         encode_info_v2, InfoFrame, MAG_AK8963, ST2_BITM)
 from accel_calib_ros.sim.motion import simulate_session
 from accel_calib_ros.sim.sensor import mpu9250_like
 import numpy as np
@@ -47,30 +48,63 @@ def test_one_window_per_held_pose_and_the_advice_follows():
     assert status['windows'] == 8 and status['state'] == 'captured'
 
 
-def test_serial_source_reads_spec_frames_from_a_port():
+def read_port(data, want, timeout=8.0):
+    """Write ``data`` to a pty read by a SerialSource; return its samples and the source."""
     master, slave = os.openpty()
     try:
         source = SerialSource(os.ttyname(slave), 1000000)
-        counts = [(0, 0, 16384, 333, 131, 0, -131)] * 7 + [(16384, 0, 0, -333, 0, 0, 0)]
-        data = b''.join(encode_frame(k, 1000 + 1000 * k, c) for k, c in enumerate(counts))
-        bad = 2 * 22 + 9                                         # a data byte of frame 2
-        os.write(master, b'\x00\xa5' + data[:bad] + bytes([data[bad] ^ 0xff]) + data[bad + 1:])
-        got = [np.zeros(0), np.zeros((0, 3)), np.zeros(0)]
-        for _ in range(50):
+        os.write(master, data)
+        got, mags = [np.zeros(0), np.zeros((0, 3)), np.zeros(0)], []
+        deadline = time.monotonic() + timeout
+        while len(got[0]) < want and time.monotonic() < deadline:
             t, a, temp = source.read(None)
             got = [np.concatenate([got[0], t]), np.vstack([got[1], a]),
                    np.concatenate([got[2], temp])]
-            if len(got[0]) >= 6:
-                break
+            if source.last_mag is not None:
+                mags.append(source.last_mag[1])
         source.close()
     finally:
         os.close(master)
         os.close(slave)
-    t, a, temp = got
-    assert len(t) >= 6                       # the damaged frame (and its neighbour) dropped
-    np.testing.assert_allclose(a[-1], [9.80665, 0, 0], atol=1e-9)
-    np.testing.assert_allclose(temp[-1], 21.0 - 333 / 333.87, atol=1e-9)
-    assert np.all(np.diff(t) >= 0)
+    return got, mags, source
+
+
+def test_serial_source_reads_the_chip_and_ranges_of_the_info_frame():
+    info = InfoFrame(0, 0x68, 4, 500, 1000, 1, 1_000_000, (2, 0))   # an MPU-6050 at ±4 g
+    counts = [(0, 0, 8192, -333, 0, 0, 0)] * 150 + [(8192, 0, 0, -333, 0, 0, 0)] * 150
+    data = b''.join(encode_frame(k, 1000 + 1000 * k, c) for k, c in enumerate(counts))
+    bad = 2 * 22 + 9                                         # a data byte of frame 2
+    data = encode_info(info) + b'\x00\xa5' + data[:bad] + bytes([data[bad] ^ 0xff]) + \
+        data[bad + 1:]
+    (t, a, temp), _, source = read_port(data, 290)
+    assert len(t) >= 290 and source.info == info    # the damaged frame (and its neighbour)
+    np.testing.assert_allclose(a[-1], [9.80665, 0, 0], atol=1e-9)            # ±4 g counts
+    np.testing.assert_allclose(temp[-1], -333 / 340.0 + 36.53, atol=1e-9)    # the 6050's
+    assert abs(t[-1] - time.time()) < 60         # the device clock mapped to host time:
+    periods = np.diff(t) / 1e-3                  # whole periods (2 where a frame was lost)
+    np.testing.assert_allclose(periods, np.round(periods), atol=1e-3)
+    assert np.all(np.round(periods) >= 1) and np.median(periods) == pytest.approx(1.0, abs=1e-3)
+
+
+def test_serial_source_gains_the_magnetometer_with_its_adjustment():
+    info = InfoFrame(0, 0x71, 2, 250, 1000, 1, 1_000_000, (2, 0), 2, MAG_AK8963,
+                     (176, 128, 64))
+    block = (100, 200, 300, ST2_BITM)                       # hx, hy, hz in its own axes
+    data = encode_info_v2(info) + b''.join(
+        encode_frame_v2(k, 1000 * k, (0, 0, 16384, 0, 0, 0, 0), block if k % 10 == 0 else None)
+        for k in range(300))
+    (t, _, _), mags, _ = read_port(data, 290)
+    assert len(t) >= 290 and mags
+    # x_acc = y_mag, y_acc = x_mag, z_acc = -z_mag; 0.15 µT a count; (ASA-128)/256+1
+    np.testing.assert_allclose(np.vstack(mags)[-1], [200 * 0.15, 100 * 0.15 * 1.1875,
+                                                     -300 * 0.15 * 0.75], rtol=1e-9)
+
+
+def test_the_guide_reads_the_port_through_the_link():
+    import inspect
+    from accel_calib_ros.cli import guide_sources
+    code = inspect.getsource(guide_sources.SerialSource)
+    assert 'SerialLink' in code and 'serial.Serial(' not in code
 
 
 @pytest.mark.parametrize('argv, words', [
@@ -151,4 +185,7 @@ def test_the_guide_windows_carry_the_rate_and_the_fit_its_bias():
     for k in range(0, len(s.t), 50):
         guide.update(s.t[k:k + 50], s.accel[k:k + 50], s.temp[k:k + 50], s.gyro[k:k + 50])
     assert len(guide.windows) == 12 and all(w.gyro_mean is not None for w in guide.windows)
-    np.testing.assert_allclose(guide.fit().gyro_bias, sensor.gyro_bias, atol=2e-3)
+    from accel_calib_ros.session.settings import DEFAULT_SETTINGS, GUIDE
+    outcome = guide.finish(DEFAULT_SETTINGS.replace(words=GUIDE))
+    assert outcome.accepted, outcome.refusal
+    np.testing.assert_allclose(outcome.calibration.gyro_bias, sensor.gyro_bias, atol=2e-3)

@@ -7,7 +7,7 @@ sessions (m/s², and raw ±16 g counts): the fits agree with each peer's own pub
 numbers, every refusal names only what is missing (or the term the method cannot
 model), and the predictions are compared with held-out data honestly: held-out windows
 of the same session where it can be split, other recordings where it cannot. The
-figures of the README's "Real recordings" table are printed by bench/bench_peers.py.
+figures of the "Real recordings" table (docs/benchmarks.md) are printed by bench/bench_peers.py.
 """
 
 import json
@@ -167,7 +167,7 @@ def test_mpu6050_gn_is_never_more_confident_with_fewer_orientations():
     """
     Every 7-window subset: predicted at least the whole session's, refused, held-out within.
 
-    (A 7-window subset predicted 0.007 m/s² and was accepted before issue 17, while its
+    (A 7-window subset predicted 0.007 m/s² and was once accepted, while its
     held-out error reached 6x that.)
     """
     import itertools

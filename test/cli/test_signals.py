@@ -1,4 +1,4 @@
-"""SIGTERM and SIGHUP clean up exactly like SIGINT: exit 128+N, no temp file (issue 16)."""
+"""SIGTERM and SIGHUP clean up exactly like SIGINT: exit 128+N, no temp file."""
 
 import os
 import signal

@@ -125,7 +125,7 @@ def test_gn_on_a_cross_axis_sensor_is_never_enough_and_says_why():
     adv = advise(means, np.full(26, 150.0), noise, method='gn')
     assert not adv.enough and adv.predicted_accuracy > 0.01
     # The cause is named: the cross-axis terms gn cannot model (it said only 'the windows
-    # scatter ... try method ml' before issue 17).
+    # scatter ... try method ml' once).
     assert 'cross-axis' in adv.reason and 'method ml' in adv.reason
     ok = advise(means, np.full(26, 150.0), noise, method='ml')
     assert ok.enough and ok.noise_inflation < 4

@@ -87,7 +87,7 @@ def test_one_noise_density_convention_across_allan_diagnose_and_simulate(tmp_pat
 
     N² is the two-sided PSD (half the one-sided level Welch returns); ``diagnose`` reads
     the same N from a session's windows; ``simulate --noise-from`` draws std N sqrt(rate).
-    (``diagnose`` printed the one-sided density, sqrt(2) N, before issue 17.)
+    (``diagnose`` once printed the one-sided density, sqrt(2) N.)
     """
     from scipy import signal
     from accel_calib_ros.modelgap import diagnose

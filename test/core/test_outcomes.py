@@ -1,5 +1,5 @@
 """
-The whole IMU beside the accelerometer (issue 19): file, fit, apply, recordings, advise.
+The whole IMU beside the accelerometer: file, fit, apply, recordings, advise.
 
 Simulated sessions with gyroscope scale/misalignment errors and an AK8963-like
 magnetometer go through the command line; what comes out is compared with the truth the
@@ -421,8 +421,10 @@ def test_guide_session_says_the_turns_and_the_sphere_and_stores_both_parts():
     assert status['gyroscope']['status'] == 'ok' and status['gyroscope']['missing_axes'] == []
     assert status['magnetometer']['coverage'] >= 0.25 and 'of the sphere' in \
         status['magnetometer']['advice']
-    cal = session.fit()
-    gyro, mag = session.solve_imu(cal, 0.01, 1.0)
+    from accel_calib_ros.session.settings import DEFAULT_SETTINGS, GUIDE
+    outcome = session.finish(DEFAULT_SETTINGS.replace(max_gyro_error=0.01,
+                                                      max_mag_error=1.0, words=GUIDE))
+    cal, gyro, mag = outcome.calibration, outcome.gyro, outcome.magnetometer
     assert gyro.calibrated and mag.calibrated, (gyro.reason, mag.reason)
     left = np.linalg.solve(cal.gyro_T, source.sensor.gyro_T) - np.eye(3)
     assert np.sqrt(np.sum(left ** 2) / 3) < 3 * cal.gyro_predicted_accuracy

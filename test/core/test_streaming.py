@@ -120,7 +120,7 @@ def test_apply_streams_and_matches_the_whole_file_correction(tmp_path, capsys, m
     assert main(['simulate', '-o', str(data), '--poses', '12', '--temp', '20', '30']) == 0
     assert main(['fit', str(data), '-o', str(calib)]) == 0
     capsys.readouterr()
-    monkeypatch.setattr(csv_io, 'CHUNK_ROWS', 333)   # many pieces
+    monkeypatch.setattr(csv_io, 'PARSE_CHUNK_ROWS', 333)   # many pieces
     monkeypatch.setattr(recording.iter_samples, '__defaults__',
                         (333,) + recording.iter_samples.__defaults__[1:])
     assert main(['apply', str(calib), str(data), '-o', str(out), '--json']) == 0

@@ -1,10 +1,7 @@
 """One still pose while the temperature sweeps: the lag, the bins and their checks, the fit."""
 
-import numpy as np
-import pytest
-
 from accel_calib_ros.core.accelerometer.thermal_lag import (Hysteresis, lagged_temperature,
-                                                          LagState, LagStream)
+                                                            LagState, LagStream)
 from accel_calib_ros.core.accelerometer.thermal_pose import fit_still
 from accel_calib_ros.core.accelerometer.thermal_still import still_bins
 from accel_calib_ros.core.calibration import Calibration
@@ -12,12 +9,14 @@ from accel_calib_ros.core.constants import G0
 from accel_calib_ros.core.errors import CalibrationError
 from accel_calib_ros.core.samples import Samples
 from accel_calib_ros.sim.chamber import ChamberProgramme, simulate_still, thermal_unit
+import numpy as np
+import pytest
 
 MG = G0 / 1000.0
 
 
 def _brute_lag(time, temp, tau, substeps=200):
-    """The lag by many small Euler steps on the linear interpolation (independent check)."""
+    """Return the lag by many small Euler steps on the linear interpolation (a check)."""
     out = [temp[0]]
     lag = temp[0]
     for k in range(1, len(temp)):
@@ -66,7 +65,7 @@ def test_stream_and_state_give_the_recording_s_lag_piece_by_piece():
 
 @pytest.fixture(scope='module')
 def chamber():
-    """A chamber cycle (cool, heat, cool) of one unit with 10 mg of hysteresis, 5 Hz."""
+    """Return a chamber cycle (cool, heat, cool) of one unit with 10 mg of hysteresis, 5 Hz."""
     rng = np.random.default_rng(7)
     programme = ChamberProgramme(rates_c_min=3.0, hold_s=600.0)
     sensor = thermal_unit(rng, hysteresis_mg=10.0)
@@ -187,8 +186,8 @@ def test_calibration_corrects_with_the_hysteresis_across_pieces(chamber):
     plain = cal.correct(s.accel, s.temp)[cooling]
     plain_err = plain - cal.correct(s.accel, s.temp)[programme.leg_of(s.t) == 1].mean(axis=0)
     worst = np.argmax(np.abs(sensor.bias_gradient))
-    assert np.sqrt(np.mean(err[:, worst] ** 2)) < 0.4 * np.sqrt(np.mean(plain_err[:, worst]
-                                                                       ** 2))
+    rms = np.sqrt(np.mean(err[:, worst] ** 2))
+    assert rms < 0.4 * np.sqrt(np.mean(plain_err[:, worst] ** 2))
 
 
 def test_a_live_stream_binned_row_by_row_gives_the_recording_s_bins(chamber):

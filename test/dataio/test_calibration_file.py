@@ -233,7 +233,7 @@ def test_property_any_text_loads_or_raises_input_error(tmp_path_factory, data):
         assert '\n' not in str(err)
 
 
-# -- predicted accuracy -------------------------------------------------------------------
+# -- predicted accuracy ---------------------------------------------------------------------------
 
 def test_predicted_accuracy_matches_monte_carlo_over_the_sphere():
     rng = np.random.default_rng(3)
@@ -286,7 +286,7 @@ def test_gyro_bias_per_band_and_fallback():
 
 
 def test_the_file_records_the_units_the_fit_was_given():
-    """Issue 27: input_units (the counts conversion T absorbed) round-trips and is checked."""
+    """input_units (the counts conversion T absorbed) round-trips and is checked."""
     cal = full_calibration()
     for units in ({'accel': 'm/s2'}, {'accel': 'g'},
                   {'accel': 'counts', 'counts_per_g': 16384.0, 'counts_offset': 32768.0}):

@@ -1,5 +1,5 @@
 """
-Device clock to host time (issue 26 item 6): a real board's rate error tracked, not chased.
+Device clock to host time: a real board's rate error tracked, not chased.
 
 Regression: the 1e-3 s/s slew limit was applied to the whole mapping, so a device clock
 more than 0.1 % off (an Uno's ceramic resonator: 0.1-0.3 %) saw-toothed the stamps by up

@@ -1,4 +1,4 @@
-"""Files a user hands over: one line, exit 2, never an internal error (issue 16)."""
+"""Files a user hands over: one line, exit 2, never an internal error."""
 
 import json
 import os

@@ -100,7 +100,7 @@ def test_dropped_frames_counted_from_seq_and_t_us(frames, data):
 
 class NoisyLink(RuleBasedStateMachine):
     """
-    A device sending frames over a damaged link, and the parser reading it (issue 15).
+    A device sending frames over a damaged link, and the parser reading it.
 
     Rules append clean frames to the wire, damage the bytes not yet read (bit flips, byte
     corruption, drops, insertions, bursts of random bytes, long runs of junk that swing

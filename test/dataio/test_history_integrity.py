@@ -1,4 +1,4 @@
-"""The history is transactional, survives damage and foreign files, and can forget (issue 16)."""
+"""The history is transactional, survives damage and foreign files, and can forget."""
 
 import contextlib
 import hashlib

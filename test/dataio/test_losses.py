@@ -1,5 +1,5 @@
 """
-Every lost sample counted (issue 26 item 7): across resets, long gaps and v1 re-locks.
+Every lost sample counted: across resets, long gaps and v1 re-locks.
 
 Regressions measured on main: a 2.5 s UART stall (seq and t_us kept counting, 501 frames
 never sent) and a 2 s unplug left ``lost_frames`` unchanged (a gap over 2 s counted 0, and

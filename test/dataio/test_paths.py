@@ -1,4 +1,4 @@
-"""Outputs: nothing destroyed, nothing poisoned (issue 16): the one border of every writer."""
+"""Outputs: nothing destroyed, nothing poisoned: the one border of every writer."""
 
 import os
 import stat
@@ -80,7 +80,7 @@ def test_every_kind_of_path_as_root_and_as_an_unprivileged_user(shared_tmp):
 
 
 def test_output_inside_a_bag_is_refused_for_every_name(tmp_path, capsys, inputs):
-    """``fit BAG -o BAG/metadata.yaml`` destroyed the bag (issue 16)."""
+    """``fit BAG -o BAG/metadata.yaml`` destroyed the bag."""
     import shutil
     bag = tmp_path / 'bag'
     shutil.copytree(os.path.join(inputs, 'bag'), bag)

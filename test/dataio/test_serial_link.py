@@ -173,7 +173,7 @@ def test_assess_names_why_and_counts_failed_publishes():
     assert assess(none, dict(prev, published=0, publish_errors=0), 0.5)[0] == ERROR
 
 
-# -- issue 26 item 7: every lost sample counted, no valid byte thrown away ------------------
+# -- every lost sample counted, no valid byte thrown away -----------------------------------------
 
 
 def delivered(got):

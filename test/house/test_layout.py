@@ -143,3 +143,160 @@ def test_a_command_imports_no_other_command(command):
     others = {f'{PACKAGE}.cli.{c}' for c in ('fit', 'apply', 'simulate', 'diagnose', 'allan',
                                              'advise', 'guide', 'history', 'simulate_device')}
     assert graph()[name] & (others - {name}) == set()
+
+
+# -- one name, one home ----------------------------------------------------------------------
+
+MAX_SHARED_CONSTANTS = 4
+"""Constant names defined in more than one module, at most (each node's parameter table is
+``PARAMS``, each node's queue ``QUEUE_DEPTH``: the same idea, one per node)."""
+
+
+def constants():
+    """Return {constant name: [modules defining it]} (module-level UPPER_CASE assignments)."""
+    import re
+    defined = {}
+    for name, path in modules().items():
+        with open(path, encoding='utf-8') as f:
+            tree = ast.parse(f.read())
+        for node in tree.body:
+            targets = node.targets if isinstance(node, ast.Assign) else \
+                [node.target] if isinstance(node, ast.AnnAssign) and node.value else []
+            for target in targets:
+                if isinstance(target, ast.Name) and re.fullmatch(r'[A-Z][A-Z0-9_]*', target.id):
+                    defined.setdefault(target.id, []).append(name)
+    return defined
+
+
+def test_a_constant_is_defined_once_or_two_ideas_have_two_names():
+    """A value defined in two modules drifts; one home, imported where it is used."""
+    shared = {n: m for n, m in constants().items() if len(m) > 1}
+    assert len(shared) <= MAX_SHARED_CONSTANTS, shared
+
+
+def _rclpy_private_names():
+    """Return the private names of rclpy's classes (``self._x`` it sets, ``def _x``)."""
+    import importlib.util
+    spec = importlib.util.find_spec('rclpy')
+    if spec is None or not spec.origin:
+        pytest.skip('rclpy is not installed')
+    private = set()
+    for folder, _, files in os.walk(os.path.dirname(spec.origin)):
+        for file in files:
+            if not file.endswith('.py'):
+                continue
+            with open(os.path.join(folder, file), encoding='utf-8') as f:
+                tree = ast.parse(f.read())
+            for node in ast.walk(tree):
+                if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and \
+                        node.value.id == 'self' and _private(node.attr):
+                    private.add(node.attr)
+                elif isinstance(node, ast.ClassDef):
+                    private.update(b.name for b in node.body if isinstance(
+                        b, (ast.FunctionDef, ast.AsyncFunctionDef)) and _private(b.name))
+    return private
+
+
+def _private(name):
+    return name.startswith('_') and not name.startswith('__')
+
+
+def _our_names():
+    """Return the names the package itself gives its objects (``self._x = ...``, ``def _x``)."""
+    ours = set()
+    for path in modules().values():
+        with open(path, encoding='utf-8') as f:
+            tree = ast.parse(f.read())
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                ours.add(node.name)
+            elif isinstance(node, (ast.Assign, ast.AugAssign, ast.AnnAssign)):
+                for target in node.targets if isinstance(node, ast.Assign) else [node.target]:
+                    ours.update(e.attr for e in ast.walk(target)
+                                if isinstance(e, ast.Attribute) and isinstance(e.value, ast.Name)
+                                and e.value.id == 'self')
+    return ours
+
+
+def test_the_nodes_use_no_private_attribute_of_rclpy():
+    """No ``_nodes``, ``_guard``, ``_parameter_overrides``: rclpy changes its privates freely."""
+    theirs = _rclpy_private_names() - _our_names()
+    found = []
+    for name, path in modules().items():
+        if floor(name) != FLOORS['nodes'] or not name.startswith(f'{PACKAGE}.nodes'):
+            continue
+        with open(path, encoding='utf-8') as f:
+            tree = ast.parse(f.read())
+        for node in ast.walk(tree):
+            used = None
+            if isinstance(node, ast.Attribute):
+                used = node.attr
+            elif isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and \
+                    node.func.id in ('getattr', 'setattr', 'hasattr', 'delattr') and \
+                    len(node.args) > 1 and isinstance(node.args[1], ast.Constant):
+                used = node.args[1].value
+            elif isinstance(node, ast.ImportFrom) and (node.module or '').startswith('rclpy'):
+                hidden = [a.name for a in node.names if _private(a.name)]
+                if hidden or any(_private(part) for part in node.module.split('.')):
+                    found.append(f'{name}:{node.lineno} from {node.module} import {hidden}')
+            if isinstance(used, str) and used in theirs:
+                found.append(f'{name}:{node.lineno} {used}')
+    assert found == []
+
+
+def test_the_guide_reads_the_port_through_the_link():
+    """One serial stack: the guide's port is read by ``dataio.link``, as the driver's."""
+    path = modules()[f'{PACKAGE}.cli.guide_sources']
+    known = modules()
+    used = imports(f'{PACKAGE}.cli.guide_sources', path, known)
+    assert f'{PACKAGE}.dataio.link' in used or f'{PACKAGE}.dataio.link.serial_link' in used
+    with open(path, encoding='utf-8') as f:
+        tree = ast.parse(f.read())
+    direct = [n.lineno for n in ast.walk(tree) if isinstance(n, (ast.Import, ast.ImportFrom))
+              and any(a.name == 'serial' or a.name.startswith('serial.') for a in n.names)
+              or isinstance(n, ast.ImportFrom) and (n.module or '').split('.')[0] == 'serial']
+    assert direct == [], 'the guide opens pyserial itself'
+
+
+# -- a front page, a map, no history in the code ---------------------------------------------
+
+REPO = os.path.join(ROOT, '..')
+MAX_README_LINES = 250
+
+
+def test_the_readme_is_a_front_page_that_links_the_map():
+    """README.md: what it is, the two commands, on a robot, where to read next."""
+    with open(os.path.join(REPO, 'README.md'), encoding='utf-8') as f:
+        text = f.read()
+    assert text.count('\n') <= MAX_README_LINES
+    assert '](docs/architecture.md)' in text
+    assert 'make demo' in text and 'make test' in text
+    assert os.path.isfile(os.path.join(REPO, 'docs', 'architecture.md'))
+
+
+def test_no_issue_numbers_in_the_package_docs_or_test_names():
+    """History belongs to the tracker and the log, not to the code, the docs or a test's name."""
+    import re
+    pattern = re.compile(r'\bissues?\s*#?\s*\d+', re.IGNORECASE)
+    found = []
+    places = [os.path.join(REPO, p) for p in ('accel_calib_ros', 'docs', 'launch', 'config')]
+    files = [os.path.join(REPO, 'README.md')]
+    for place in places:
+        for folder, _, names in os.walk(place):
+            files += [os.path.join(folder, n) for n in names
+                      if n.endswith(('.py', '.md', '.yaml', '.txt'))]
+    for path in files:
+        with open(path, encoding='utf-8') as f:
+            for number, line in enumerate(f, 1):
+                if pattern.search(line):
+                    found.append(f'{os.path.relpath(path, REPO)}:{number}')
+    tests = os.path.join(REPO, 'test')
+    for folder, _, names in os.walk(tests):
+        for name in names:
+            if name.endswith('.py'):
+                with open(os.path.join(folder, name), encoding='utf-8') as f:
+                    found += [f'{name}: {n}' for n in re.findall(r'def (test\w*)', f.read())
+                              if re.search(r'issue_?\d', n)]
+            if re.search(r'issue_?\d', name):
+                found.append(name)
+    assert found == []

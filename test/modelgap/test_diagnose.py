@@ -6,7 +6,6 @@ import pathlib
 from accel_calib_ros.cli import main
 from accel_calib_ros.core.errors import CalibrationError
 from accel_calib_ros.modelgap import diagnose, diagnose_windows, held_out_check
-from accel_calib_ros.modelgap.effects import EFFECTS
 from accel_calib_ros.sim.motion import (face_directions, random_directions, simulate_session,
                                         simulate_static_windows)
 from accel_calib_ros.sim.sensor import G0, mpu9250_like, with_datasheet_effect
@@ -224,37 +223,6 @@ def test_report_has_a_residual_plot_per_step(tmp_path):
     for name in ('gap.png', 'residuals_step0.png', 'residuals_step1.png'):
         assert name in text and (tmp_path / 'r' / name).stat().st_size > 1000
     assert not [f for f in (tmp_path / 'r').iterdir() if f.name.startswith('.')]
-
-
-def test_a_new_effect_is_one_class(monkeypatch):
-    from accel_calib_ros.modelgap import effects
-
-    class TemperatureBias2(effects.PerAxisEffect):
-        name = 'temperature_bias_quadratic'
-        description = 'the zero-g offset bends with temperature'
-        param_names = ('c2_x', 'c2_y', 'c2_z')
-        unit = 'm/s² per °C²'
-        label = 'offset curvature'
-        applicable = effects.TemperatureBias.applicable
-
-        def columns(self, accel, temp, time, gravity=G0):
-            return effects._per_axis(np.repeat(temp[:, None] ** 2, 3, axis=1))
-
-        def axis_text(self, value, gravity):
-            return f'{1000 * value / gravity:+.4f} mg/°C²'
-
-    new = TemperatureBias2()
-    monkeypatch.setitem(EFFECTS, new.name, new)
-    rng = np.random.default_rng(13)
-    sensor = mpu9250_like(rng)
-    windows = windows_of(sensor, rng, hump)
-    temp = windows.temp - windows.temp.mean()
-    hidden_params = np.array([0.05e-3, -0.04e-3, 0.03e-3]) * G0     # mg/°C²
-    windows.mean[:] += new.apply(hidden_params, windows.mean, temp, windows.t_mid)
-    result = diagnose_windows(windows, 'ml', replicates=5)
-    assert result.missing_effects[:1] == [new.name], result.text()
-    assert 'mg/°C²' in result.steps[0]['evidence']['magnitude']
-    assert result.gap_after < 1.5
 
 
 # -- round two: practical size, outside the library, vibration, 1 kHz, stable null ---------

@@ -1,5 +1,5 @@
 """
-The calibration node keeps up while it calibrates (issue 26), on real rclpy over DDS.
+The calibration node keeps up while it calibrates, on real rclpy over DDS.
 
 The node runs as ``main()`` runs it: its stream group on one executor and thread, the node
 itself (parameters, services, timers) on another. It is handed a long three-sensor session

@@ -1,5 +1,5 @@
 """
-The driver on a live link (issue 15): heavy noise, a silent port, then clean frames again.
+The driver on a live link: heavy noise, a silent port, then clean frames again.
 
 The real driver node runs in-process on the slave side of a pty; a writer thread plays
 the device on the master side in real time. Each frame carries its own number in ``ax``,

@@ -1,5 +1,5 @@
 """
-The driver on a link that misbehaves like a real board (issue 26 items 6 and 7).
+The driver on a link that misbehaves like a real board.
 
 The virtual device (``sim/device.py``) stalls its UART, is unplugged and replugged, or runs
 its clock 2000 ppm fast; its ``--report`` says exactly which samples it never sent, and

@@ -1,5 +1,5 @@
 """
-The driver never goes mute (issue 26 item 5): failed publishes are counted and survived.
+The driver never goes mute: failed publishes are counted and survived.
 
 Regression: one ``publish()`` that raised (Fast DDS's transient "cannot publish data")
 set the stop flag, the reader thread ended for good and ``/diagnostics`` said

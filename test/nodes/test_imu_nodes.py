@@ -1,5 +1,5 @@
 """
-The whole IMU in the nodes (issue 19), in-process on real rclpy.
+The whole IMU in the nodes, in-process on real rclpy.
 
 The correction node, spun with a peer over DDS, corrects ``angular_velocity`` with the
 gyroscope's T (and maps its covariance) and ``imu/mag`` into ``imu/mag_corrected``; the
@@ -292,7 +292,7 @@ def test_a_sensor_without_data_is_reported_never_fails_the_others(calibration_no
 
 def test_an_accelerometer_only_session_keeps_the_files_other_parts(calibration_node, tmp_path,
                                                                    imu_session):
-    """Issue 27: a new session without a magnetometer no longer drops the file's one."""
+    """A new session without a magnetometer no longer drops the file's one."""
     path = tmp_path / 'calibration.yaml'
     save_calibration(imu_calibration(), path)
     before = load_calibration(path)

@@ -1,4 +1,4 @@
-"""The nodes' file parameters and ranges: logged and refused, never fatal (issue 16)."""
+"""The nodes' file parameters and ranges: logged and refused, never fatal."""
 
 import os
 import stat

@@ -8,7 +8,7 @@ accelerometer.
 """
 
 from accel_calib_ros.core.collector import ImuCollector
-from accel_calib_ros.session.accept import (CLI, CollectedImu, fit_and_accept, NODE, Settings,
+from accel_calib_ros.session.accept import (CollectedImu, FIT, fit_and_accept, NODE, Settings,
                                             thermal_wanted)
 from accel_calib_ros.session.gap import model_gap
 from accel_calib_ros.session.windows import Observations, Window, WindowSet
@@ -69,7 +69,7 @@ def test_readings_in_g_are_not_physical():
     assert not outcome.accepted and 'not physical' in outcome.refusal
     warned = fit_and_accept(windows.observations(5.0, 200.0),
                             Settings(refuse_unphysical=False, max_predicted_error=10.0,
-                                     max_residual_ratio=None, words=CLI))
+                                     max_residual_ratio=None, words=FIT))
     assert warned.accepted and any('m/s²' in w for w in warned.warnings)
 
 
@@ -155,14 +155,14 @@ def test_every_door_refuses_the_residual_in_its_own_words():
     rng = np.random.default_rng(9)
     _, means = session(20)
     moved = windows_of(means + rng.normal(0, 0.2, means.shape)).observations(5.0, 200.0)
-    node, cli = (fit_and_accept(moved, Settings(words=w)).refusal for w in (NODE, CLI))
+    node, cli = (fit_and_accept(moved, Settings(words=w)).refusal for w in (NODE, FIT))
     assert 'max_residual_ratio' in node and 'model-gap check follows on ~/status' in node
     assert '--max-residual-ratio' in cli and 'accel-calib diagnose DATA' in cli
     assert fit_and_accept(moved, Settings(max_residual_ratio=None, max_predicted_error=1.0,
-                                          words=CLI)).refusal is None
+                                          words=FIT)).refusal is None
 
 
-def test_records_build_like_dataclasses_for_less_start_up():
+def test_the_session_records_are_plain_and_fresh():
     from accel_calib_ros.session.accept import Outcome
     a, b = Outcome(), Outcome(refusal='x')
     assert a.warnings == [] and a.warnings is not b.warnings        # a fresh list each
@@ -173,3 +173,5 @@ def test_records_build_like_dataclasses_for_less_start_up():
         Settings(metod='ml')
     with pytest.raises(TypeError):
         Observations(np.zeros((1, 3)), readings=np.zeros((1, 3)))
+    with pytest.raises(AttributeError):
+        a.refusl = 'typo'                                # __slots__: a typo is an error

@@ -7,7 +7,7 @@ from ..errors import CalibrationError
 UPPER = np.triu_indices(3)
 """Row-major indices of the six upper-triangular entries of T."""
 
-BLOCK = 8192
+ROWS_PER_BLOCK = 8192
 """Observations processed at once by the blocked loops (temporaries stay in cache)."""
 
 _BATCH = 512
@@ -94,9 +94,9 @@ def fit_ellipsoid_columns(yt, w, radius=1.0):
     wsum = float(np.sum(w))
     centre0 = np.einsum('in,n->i', yt, w) / wsum
     scale0 = 0.0
-    for s in range(0, n, BLOCK):
-        d = yt[:, s:s + BLOCK] - centre0[:, None]
-        scale0 += float(np.sum(w[s:s + BLOCK] * np.sum(d * d, axis=0)))
+    for s in range(0, n, ROWS_PER_BLOCK):
+        d = yt[:, s:s + ROWS_PER_BLOCK] - centre0[:, None]
+        scale0 += float(np.sum(w[s:s + ROWS_PER_BLOCK] * np.sum(d * d, axis=0)))
     scale0 = np.sqrt(scale0 / wsum)
     if not scale0 > 0:
         raise CalibrationError('all observations are identical')
@@ -104,9 +104,9 @@ def fit_ellipsoid_columns(yt, w, radius=1.0):
     # data are centred and scaled, so its condition is that of the geometry), summed
     # over blocks so no (10, N) design matrix is held at once.
     gram = np.zeros((10, 10))
-    for s in range(0, n, BLOCK):
-        design = _design((yt[:, s:s + BLOCK] - centre0[:, None]) / scale0)
-        gram += cross_product(design * w[s:s + BLOCK], design)
+    for s in range(0, n, ROWS_PER_BLOCK):
+        design = _design((yt[:, s:s + ROWS_PER_BLOCK] - centre0[:, None]) / scale0)
+        gram += cross_product(design * w[s:s + ROWS_PER_BLOCK], design)
     coef = np.linalg.eigh(gram)[1][:, 0]
     a, b, c, f, g, h, p, q, r, d = coef
     E = np.array([[a, f, g], [f, b, h], [g, h, c]])
@@ -136,10 +136,10 @@ def fit_ellipsoid_columns(yt, w, radius=1.0):
             f'the fitted ellipsoid is flat (axis ratio {axes[-1] / axes[0]:.3f}): the '
             'orientations do not span three dimensions; tilt the sensor out of the plane')
     scatter = np.zeros((3, 3))
-    for s in range(0, n, BLOCK):
-        u = apply(R, yt[:, s:s + BLOCK] - bias[:, None])
+    for s in range(0, n, ROWS_PER_BLOCK):
+        u = apply(R, yt[:, s:s + ROWS_PER_BLOCK] - bias[:, None])
         u /= np.sqrt(np.sum(u * u, axis=0))
-        scatter += cross_product(u * w[s:s + BLOCK], u)
+        scatter += cross_product(u * w[s:s + ROWS_PER_BLOCK], u)
     check_scatter(scatter / wsum)
     return T, bias
 
@@ -147,7 +147,7 @@ def fit_ellipsoid_columns(yt, w, radius=1.0):
 MIN_AXIS_RATIO = 0.2
 """Smallest accepted ratio of the ellipsoid's axes (a real triad's sensitivities agree)."""
 
-MIN_COVERAGE = 0.01
+MIN_DIRECTION_SPREAD = 0.01
 """Smallest eigenvalue of the weighted direction scatter E[u uᵀ] accepted (sphere: 1/3)."""
 
 
@@ -167,8 +167,8 @@ def check_scatter(scatter):
     :returns: its smallest eigenvalue (the coverage).
     """
     coverage = np.linalg.eigvalsh(scatter)[0]
-    if coverage < MIN_COVERAGE:
+    if coverage < MIN_DIRECTION_SPREAD:
         raise CalibrationError(
             f'the orientations do not cover all three axes (coverage {coverage:.3f}, '
-            f'needs {MIN_COVERAGE}); tilt the sensor out of the plane it was turned in')
+            f'needs {MIN_DIRECTION_SPREAD}); tilt the sensor out of the plane it was turned in')
     return coverage

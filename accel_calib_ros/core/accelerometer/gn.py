@@ -8,15 +8,16 @@ the normal equations of eq. 16-17. In this package's convention ``raw = T true +
 that is ``T = diag(1 / k)`` and ``bias = d``.
 """
 
+from dataclasses import dataclass, field
 import time
 
 import numpy as np
 
+from .ml import PRECISION_FACTOR, STEP_TOLERANCE
 from ..errors import CalibrationError
-from ..record import fresh, record
 
 
-@record
+@dataclass(eq=False)          # arrays: equal only to itself
 class GNResult:
     """
     Outcome of :func:`fit_gn`.
@@ -34,7 +35,7 @@ class GNResult:
     iterations: int
     converged: bool
     seconds: float
-    trace: list = fresh(list)
+    trace: list = field(default_factory=list)
 
     @property
     def T(self):
@@ -61,13 +62,6 @@ def _axis_aligned_start(y, w):
     lo, hi = y.min(axis=0), y.max(axis=0)
     half = np.maximum((hi - lo) / 2.0, 1e-9)
     return 1.0 / half, (hi + lo) / 2.0
-
-
-STEP_TOLERANCE = 1e-6
-"""Converged when the last step moved the fit by at most this many standard errors."""
-
-PRECISION_FACTOR = 1e3
-"""Steps below this many machine epsilons of the normalised residuals are roundoff."""
 
 
 def fit_gn(readings, weights=None, radius=1.0, max_iter=100, tol=STEP_TOLERANCE):

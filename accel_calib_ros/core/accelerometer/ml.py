@@ -20,17 +20,16 @@ it converge from the ellipsoid start on real data; near the optimum it is the
 undamped Newton iteration of the paper and converges quadratically.
 """
 
+from dataclasses import dataclass, field
 import time
 from typing import NamedTuple
 
 import numpy as np
 
-from .ellipsoid import apply, BLOCK, check_scatter, cross_product, fit_ellipsoid_columns, UPPER
+from .ellipsoid import (apply, check_scatter, cross_product, fit_ellipsoid_columns,
+                        ROWS_PER_BLOCK, UPPER)
+from ..calibration import PARAMETER_NAMES  # noqa: F401 - the order of its vectors
 from ..errors import CalibrationError
-from ..record import fresh, record
-
-PARAMETER_NAMES = ('T_xx', 'T_xy', 'T_xz', 'T_yy', 'T_yz', 'T_zz', 'b_x', 'b_y', 'b_z')
-"""Order of the 9 calibration parameters in vectors and covariances."""
 
 
 def pack(T, bias):
@@ -67,7 +66,7 @@ def _normalise(v):
     return v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
-@record
+@dataclass(eq=False)          # arrays: equal only to itself
 class MLResult:
     """
     Outcome of :func:`fit_ml`, in the units of the readings.
@@ -94,7 +93,7 @@ class MLResult:
     iterations: int
     converged: bool
     seconds: float
-    trace: list = fresh(list)
+    trace: list = field(default_factory=list)
 
 
 class _System(NamedTuple):
@@ -129,14 +128,14 @@ class _Problem:
     (with the plain weighted ones that give ``A``, the gradient and the objective)
     come from one BLAS product per block of observations. Data are held by component
     (3, N) so every elementwise operation runs over long contiguous rows, and blocks
-    of :data:`BLOCK` observations keep the temporaries in cache: the cost is a few
+    of :data:`ROWS_PER_BLOCK` observations keep the temporaries in cache: the cost is a few
     passes over the data per iteration.
 
     :param yt: (3, N) normalised readings.
     :param w: (N,) weights, mean 1.
     """
 
-    def __init__(self, yt, w, block=BLOCK):
+    def __init__(self, yt, w, block=ROWS_PER_BLOCK):
         self.yt = yt
         self.w = w
         self.n = yt.shape[1]
@@ -308,9 +307,9 @@ def _initial_directions(yt, T, b):
     """Directions (3, N) of the readings seen through the start (T, b)."""
     Tinv = np.linalg.inv(T)
     u = np.empty_like(yt)
-    for s in range(0, yt.shape[1], BLOCK):
-        v = u[:, s:s + BLOCK]
-        v[...] = apply(Tinv, yt[:, s:s + BLOCK] - b[:, None])
+    for s in range(0, yt.shape[1], ROWS_PER_BLOCK):
+        v = u[:, s:s + ROWS_PER_BLOCK]
+        v[...] = apply(Tinv, yt[:, s:s + ROWS_PER_BLOCK] - b[:, None])
         v /= np.sqrt(np.sum(v * v, axis=0))
     return u
 

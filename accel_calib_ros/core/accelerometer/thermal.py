@@ -23,15 +23,16 @@ neighbours, or no drift at all, take over).
 """
 
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
-from ..record import fresh, record
 
 MIN_WINDOWS_PER_BAND = 12
 """Fewest static windows a band needs for its nine coefficients."""
 
 
-@record
+@dataclass(eq=False)          # arrays: equal only to itself
 class ThermalBand:
     """
     Drift coefficients of one temperature band.
@@ -82,7 +83,7 @@ class ThermalBand:
                    None if gyro is None else np.asarray(gyro, float).reshape(3))
 
 
-@record
+@dataclass(eq=False)          # arrays: equal only to itself
 class ThermalTable:
     """
     Band drift tables and their continuous lookup.
@@ -102,7 +103,7 @@ class ThermalTable:
     """
 
     band_width_c: float
-    bands: list = fresh(list)
+    bands: list = field(default_factory=list)
     extrapolation: str = 'hold'
     reference_c: float = None
     calibrated_c: tuple = None

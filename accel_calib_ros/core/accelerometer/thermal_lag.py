@@ -133,7 +133,7 @@ class LagState:
 
     @property
     def gradient(self):
-        """The last gradient θ - θ_lag, °C (0 before the first reading)."""
+        """Return the last gradient θ - θ_lag, °C (0 before the first reading)."""
         return 0.0 if self.lag is None else self.temp - self.lag
 
 

@@ -77,7 +77,7 @@ MIN_MOVES = 5
 GAP_FACTOR = 5.0
 """A time step longer than this many median steps inside a move drops the move."""
 
-STEP_TOLERANCE = 1e-4
+GYRO_STEP_TOLERANCE = 1e-4
 """Converged when the next Gauss-Newton step moves K by at most this many std errors."""
 
 
@@ -410,7 +410,7 @@ def _gauss_newton(data, K, r, J, Jb, C, dof, max_iter):
             decrement = float(-g @ step)
         except np.linalg.LinAlgError:
             step, decrement = None, np.inf
-        if step is not None and decrement <= STEP_TOLERANCE ** 2 * cost / max(dof, 1) + floor:
+        if step is not None and decrement <= GYRO_STEP_TOLERANCE ** 2 * cost / max(dof, 1) + floor:
             converged = True
             break
         if it == max_iter:

@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..accelerometer.ellipsoid import UPPER
 from ..accelerometer.ml import fit_ml
 from ..errors import CalibrationError, InputError
 from ..gyroscope.fit import accel_corrector
@@ -84,13 +85,11 @@ size: 0.9 µT for 0.4 µT noise (ratio 4); a real session gives 48 µT for 0.4 �
 an indoor field of 25 µT with a 0.6 µT noise still 40.
 """
 
-MIN_WINDOWS = 6
+MIN_ALIGNMENT_WINDOWS = 6
 """Static windows with magnetometer samples needed to fit R and the dip (4 unknowns)."""
 
 MAX_ALIGNMENT_STD_DEG = 2.0
 """R whose standard error exceeds this (degrees) is not trusted: it stays identity."""
-
-UPPER = np.triu_indices(3)
 
 
 def coverage_cells(cells=COVERAGE_CELLS):
@@ -354,7 +353,7 @@ def _window_means(samples, windows, correct_accel, mag_ok):
 
 
 def fit_magnetometer(samples, windows=None, accel=None, field_uT=None,
-                     min_coverage=MIN_COVERAGE, min_windows=MIN_WINDOWS):
+                     min_coverage=MIN_COVERAGE, min_windows=MIN_ALIGNMENT_WINDOWS):
     """
     Calibrate the magnetometer: soft iron, hard iron, alignment, field and dip (§10).
 

@@ -34,7 +34,7 @@ from .still import StillDetector
 @dataclass
 class MonitorSettings:
     """
-    The monitor's settings (the node's parameters; README "Field monitor").
+    The monitor's settings (the node's parameters; docs/parameters.md, docs/ros.md).
 
     Angles in degrees, rates in °/s, accelerations in mg, times in s, as the node's
     parameters are.

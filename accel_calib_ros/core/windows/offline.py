@@ -16,10 +16,11 @@ non-rotating part, or dropped and reported in ``StaticWindows.dropped``.
 """
 
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
 from ..errors import CalibrationError, InputError
-from ..record import fresh, record
 from ..stats import median, quantile
 
 MAX_WEIGHT_S = 5.0
@@ -28,7 +29,7 @@ DEFAULTS = {'window_s': 0.25, 'min_duration_s': 0.3, 'threshold_factor': 3.0, 't
             'floor_quantile': 0.02, 'max_rotation_rad_s': float(np.radians(2.0))}
 
 
-@record
+@dataclass(eq=False)          # arrays: equal only to itself
 class StaticWindows:
     """
     Static windows of a recording, one row per window.
@@ -56,7 +57,7 @@ class StaticWindows:
     temp: np.ndarray
     noise_floor: float = float('nan')
     gyro_mean: np.ndarray = None
-    dropped: list = fresh(list)
+    dropped: list = field(default_factory=list)
     low_passed: bool = False
 
     def __len__(self):

@@ -14,6 +14,7 @@ Two layouts, both decoded:
 import struct
 from typing import NamedTuple, Tuple
 
+from .chips import chip_name
 from .crc import crc16, crc8
 
 INFO_SYNC = b'\xa5\x49'
@@ -25,8 +26,6 @@ INFO_VERSION = 1
 INFO_STATUS = {0: 'streaming', 1: 'unknown chip (WHO_AM_I not recognised): not streaming',
                2: 'no sensor answers at I2C address 0x68: not streaming',
                3: 'sensor did not accept its configuration: not streaming'}
-CHIPS = {0x71: 'MPU-9250', 0x73: 'MPU-9255', 0x70: 'MPU-6500', 0x68: 'MPU-6050'}
-"""WHO_AM_I values of the supported chips."""
 MAG_UNKNOWN, MAG_ABSENT, MAG_AK8963, MAG_FAILED = 255, 0, 1, 2
 MAG_STATUS = {MAG_UNKNOWN: 'not reported by the firmware',
               MAG_ABSENT: 'absent (no AK8963 answers)',
@@ -83,8 +82,8 @@ class InfoFrame(NamedTuple):
 
     @property
     def chip(self):
-        """Chip name from WHO_AM_I ('unknown (0x..)' otherwise)."""
-        return CHIPS.get(self.who_am_i, f'unknown (0x{self.who_am_i:02x})')
+        """Chip name from WHO_AM_I (``chips.CHIPS``; 'unknown (0x..)' otherwise)."""
+        return chip_name(self.who_am_i)
 
     @property
     def status_text(self):

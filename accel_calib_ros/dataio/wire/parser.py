@@ -10,7 +10,7 @@ import collections
 import heapq
 import math
 
-from .conversion import TEMP_FORMULAS
+from .chips import TEMP_FORMULAS
 from .crc import crc16, CRC8_TABLE
 from .frames import BLOCK, HEAD_V1, HEAD_V2, INT16_MAX, INT16_MIN, MAG, RawFrame
 from .info import decode_info

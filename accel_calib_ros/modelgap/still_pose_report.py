@@ -20,7 +20,7 @@ import os
 import matplotlib
 import numpy as np
 
-from .still import StillModel
+from .still_pose import StillModel
 from ..dataio.atomic import atomic_write_text
 from ..dataio.figures import save_figure
 

@@ -5,7 +5,7 @@ The thermal calibration of one still pose, for every front door (``fit``, the no
 cycle) and an existing calibration (its T and bias, fitted at its own temperature) and
 returns that calibration plus offset tables against temperature, the gyroscope bias against
 temperature from the same data, and, when the data support it, the heating/cooling
-hysteresis term the model-gap workflow names (``modelgap.still``): the same selection,
+hysteresis term the model-gap workflow names (``modelgap.still_pose``): the same selection,
 criterion and naming power as ``diagnose``, so that ``fit`` carries exactly the effect
 ``diagnose`` names. The tables are zero at the calibration's own temperature, so its
 correction there is unchanged. Nothing is written here (:mod:`.persist` saves).
@@ -111,7 +111,7 @@ def fit_thermal(samples, reference, settings=None):
     out.reference_c, out.reference_note = reference_temperature(reference, rec)
     hysteresis = None
     if settings.hysteresis != 'off':
-        from ..modelgap.still import diagnose_still
+        from ..modelgap.still_pose_run import diagnose_still
         try:
             out.diagnosis = diagnose_still(rec, reference, out.reference_c,
                                            settings.band_width_c, settings.gravity,
