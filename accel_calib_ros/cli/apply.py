@@ -16,8 +16,8 @@ import sys
 
 import numpy as np
 
-from .common import (add_data_args, check_output, check_suffix, STDOUT, time_unit, to_si,
-                     unit_options, UsageError)
+from .common import (add_data_args, check_output, check_suffix, recorded_units, STDOUT,
+                     time_unit, to_si, UsageError)
 from ..core.errors import InputError
 from ..core.samples import Samples
 
@@ -58,16 +58,17 @@ def run(args, out):
         if cal.thermal is not None and cal.thermal.usable and first.temp is None:
             print('accel-calib: warning: calibration has temperature tables but the data '
                   'have no temperature; applying without drift correction', file=sys.stderr)
-        n, outside, sum_before, sum_after = 0, 0, 0.0, 0.0
+        n, sum_before, sum_after = 0, 0.0, 0.0
+        range_c = thermal_range(cal)
+        seen = Seen(range_c)
+        stream = cal.lag_stream()           # the hysteresis term's lag, across pieces
         gyro_subtracted = first.gyro is not None and cal.gyro_bias is not None
         with csv_writer(args.output, first.temp is not None, first.gyro is not None,
                         has_mag=first.mag is not None) as w:
             for samples in itertools.chain([first], pieces):
-                if cal.temperature_range_c is not None and samples.temp is not None:
-                    lo, hi = cal.temperature_range_c
-                    outside += int(np.sum((samples.temp < lo - 1.0) | (samples.temp > hi + 1.0)))
+                seen.add(samples.temp)
                 with np.errstate(all='ignore'):
-                    corrected = cal.correct(samples.accel, samples.temp)
+                    corrected = cal.correct(samples.accel, samples.temp, samples.t, stream)
                     gyro = samples.gyro
                     if gyro is not None:
                         gyro = cal.correct_gyro(gyro, samples.temp)
@@ -88,16 +89,19 @@ def run(args, out):
                 sum_after += float(np.linalg.norm(corrected, axis=1).sum())
                 if not is_csv:
                     bar.update(len(samples))
-    if outside:
-        lo, hi = cal.temperature_range_c
-        print(f'accel-calib: warning: {outside} samples lie outside the calibrated '
-              f'temperature range {lo:.1f} .. {hi:.1f} °C', file=sys.stderr)
+    if seen.outside:
+        print(f'accel-calib: warning: {seen.words(cal)}', file=sys.stderr)
     summary = {'output': args.output, 'samples': n, 'calibration': args.calibration,
                'mean_norm_before': sum_before / n, 'mean_norm_after': sum_after / n,
                'gyro_bias_subtracted': gyro_subtracted,
                'gyro_corrected': _gyro_words(cal, first),
                'magnetometer_corrected': first.mag is not None and cal.magnetometer is not None,
-               'samples_outside_temperature_range': outside, 'input_units': used}
+               'samples_outside_temperature_range': seen.outside,
+               'temperature_range_seen_c': seen.seen_c(),
+               'calibrated_range_c': None if range_c is None else list(range_c),
+               'hysteresis_applied': stream is not None and first.temp is not None,
+               'hysteresis_restarts': 0 if stream is None else stream.restarts,
+               'input_units': used}
     if args.json:
         out(summary)
     else:
@@ -112,45 +116,48 @@ def run(args, out):
     return 0
 
 
-UNIT_OPTIONS = ('units', 'counts_per_g', 'range_g')
+RANGE_MARGIN_C = 1.0
+"""Temperatures this far beyond the calibrated range are counted as outside it, °C."""
 
 
-def recorded_units(args, cal):
-    """
-    Set the unit options of ``args`` to the calibration's ``input_units`` (or check them).
+def thermal_range(cal):
+    """Return the temperature range the calibration knows, °C (its tables' or its fit's)."""
+    if cal.thermal is not None and cal.thermal.range_c is not None:
+        return tuple(cal.thermal.range_c)
+    return cal.temperature_range_c
 
-    Without unit options the recorded conversion is used; options that say another one
-    are refused (counts options without a sensitivity take the recorded one). A
-    calibration that records none leaves the options as they are.
 
-    :return: the conversion used (``input_units`` form).
-    :raises UsageError: the options say another conversion than the fit's.
-    """
-    from ..dataio.units import conversion_words, input_units, same_conversion
-    given = any(getattr(args, k, None) is not None for k in UNIT_OPTIONS) or \
-        bool(getattr(args, 'counts_offset', 0.0))
-    recorded = cal.input_units
-    sensitivity = getattr(args, 'counts_per_g', None), getattr(args, 'range_g', None)
-    if recorded is not None and recorded['accel'] == 'counts' and sensitivity == (None, None) \
-            and getattr(args, 'units', None) in (None, 'counts'):
-        args.counts_per_g = recorded['counts_per_g']     # counts without their sensitivity
-    options = unit_options(args)
-    stated = input_units(options['units'], options['counts_per_g'], options['counts_offset'])
-    if recorded is None:
-        return stated
-    if not given:
-        args.units = recorded['accel']
-        args.counts_per_g = recorded.get('counts_per_g')
-        args.range_g = None
-        args.counts_offset = recorded.get('counts_offset') or 0.0
-        return dict(recorded)
-    if not same_conversion(stated, recorded):
-        raise UsageError(f'accel-calib: apply: the calibration was fitted on readings in '
-                         f'{conversion_words(recorded)}, and its T absorbed that conversion; '
-                         f'the unit options say {conversion_words(stated)}: give the same '
-                         'conversion (or no unit option: apply then uses the recorded one), '
-                         'or fit again on data converted this way')
-    return stated
+class Seen:
+    """The temperatures a recording held, and how many lay outside the calibrated range."""
+
+    def __init__(self, range_c):
+        self.range_c, self.outside, self.low, self.high = range_c, 0, np.inf, -np.inf
+
+    def add(self, temp):
+        if temp is None:
+            return
+        finite = temp[np.isfinite(temp)]
+        if not len(finite):
+            return
+        self.low, self.high = min(self.low, finite.min()), max(self.high, finite.max())
+        if self.range_c is not None:
+            lo, hi = self.range_c
+            self.outside += int(np.sum((finite < lo - RANGE_MARGIN_C)
+                                       | (finite > hi + RANGE_MARGIN_C)))
+
+    def seen_c(self):
+        return None if self.low > self.high else [float(self.low), float(self.high)]
+
+    def words(self, cal):
+        lo, hi = self.range_c
+        beyond = ('the thermal tables are continued linearly there, an extrapolation'
+                  if cal.thermal is not None and cal.thermal.extrapolation == 'linear'
+                  else 'the correction there is that of the nearest calibrated temperature'
+                  if cal.thermal is not None and cal.thermal.usable
+                  else 'no thermal tables: the offsets there may have moved')
+        return (f'{self.outside} samples lie outside the calibrated temperature range '
+                f'{lo:.1f} .. {hi:.1f} °C (the data reach {self.low:.1f} .. {self.high:.1f} °C): '
+                f'{beyond}')
 
 
 def _gyro_words(cal, samples):

@@ -445,3 +445,44 @@ def check_link_output(link, *inputs, what='--link'):
             if _inside(target, inside):
                 raise UsageError(f'accel-calib: {what} {link} lies inside the input {inside}; '
                                  'writing there could destroy it: choose a path outside it')
+
+
+UNIT_OPTIONS = ('units', 'counts_per_g', 'range_g')
+
+
+def recorded_units(args, cal, command='apply'):
+    """
+    Set the unit options of ``args`` to the calibration's ``input_units`` (or check them).
+
+    Without unit options the recorded conversion is used; options that say another one
+    are refused (counts options without a sensitivity take the recorded one). A
+    calibration that records none leaves the options as they are.
+
+    :return: the conversion used (``input_units`` form).
+    :raises UsageError: the options say another conversion than the fit's.
+    """
+    from ..dataio.units import conversion_words, input_units, same_conversion
+    given = any(getattr(args, k, None) is not None for k in UNIT_OPTIONS) or \
+        bool(getattr(args, 'counts_offset', 0.0))
+    recorded = cal.input_units
+    sensitivity = getattr(args, 'counts_per_g', None), getattr(args, 'range_g', None)
+    if recorded is not None and recorded['accel'] == 'counts' and sensitivity == (None, None) \
+            and getattr(args, 'units', None) in (None, 'counts'):
+        args.counts_per_g = recorded['counts_per_g']     # counts without their sensitivity
+    options = unit_options(args)
+    stated = input_units(options['units'], options['counts_per_g'], options['counts_offset'])
+    if recorded is None:
+        return stated
+    if not given:
+        args.units = recorded['accel']
+        args.counts_per_g = recorded.get('counts_per_g')
+        args.range_g = None
+        args.counts_offset = recorded.get('counts_offset') or 0.0
+        return dict(recorded)
+    if not same_conversion(stated, recorded):
+        raise UsageError(f'accel-calib: {command}: the calibration was fitted on readings in '
+                         f'{conversion_words(recorded)}, and its T absorbed that conversion; '
+                         f'the unit options say {conversion_words(stated)}: give the same '
+                         'conversion (or no unit option: apply then uses the recorded one), '
+                         'or fit again on data converted this way')
+    return stated

@@ -32,9 +32,23 @@ def add_arguments(p):
                    help='windows: one observation per detected static window; samples: '
                         'every row is one observation (default windows)')
     p.add_argument('--thermal', action='store_true',
-                   help='also fit temperature-band drift tables (needs temp)')
-    p.add_argument('--band-width', type=ranged(0.1, 1000.0), default=S.band_width_c,
-                   help='temperature band width, °C (default %(default)s)')
+                   help='also fit temperature-band drift tables (needs temp); with '
+                        '--calibration: the thermal part from one still pose')
+    p.add_argument('--band-width', type=ranged(0.1, 1000.0), default=None,
+                   help='temperature band width, °C (default 10, or 5 for one still pose)')
+    g = p.add_argument_group('thermal calibration from one still pose (--thermal '
+                             '--calibration: a warm-up or chamber cycle, as PX4 and '
+                             'ArduPilot record it)')
+    g.add_argument('--calibration', metavar='CALIB',
+                   help='the calibration to extend (its T and bias at its own temperature): '
+                        'DATA is then one still pose while the temperature sweeps; the '
+                        'output is CALIB plus offset tables against temperature (-o may be '
+                        'CALIB itself)')
+    g.add_argument('--min-span', type=ranged(0.5, 200.0), default=5.0, metavar='C',
+                   help='smallest temperature span taken, °C (default %(default)s)')
+    g.add_argument('--hysteresis', choices=('auto', 'off'), default='auto',
+                   help='auto: carry the heating/cooling hysteresis term when the model-gap '
+                        'selection names it (default); off: never')
     p.add_argument('--gravity', type=GRAVITY, default=S.gravity,
                    help='local gravity magnitude, m/s² (default %(default)s)')
     p.add_argument('--max-predicted-error', type=ranged(1e-9, 1e3),
@@ -186,7 +200,7 @@ def _observations(samples, args):
     from ..core.accelerometer.fit import find_outlier_windows
     keep, outliers = find_outlier_windows(
         windows.mean, weights, windows.count, windows.noise_std, args.gravity,
-        windows.temp, getattr(args, 'thermal', False), getattr(args, 'band_width', 10.0),
+        windows.temp, getattr(args, 'thermal', False), getattr(args, 'band_width', None) or 10.0,
         getattr(args, 'method', 'ml'))
     for k, reason in outliers:
         dropped.append({'t_start': float(samples.t[windows.start[k]]),
@@ -291,7 +305,8 @@ def settings(args):
     units = unit_options(args)
     return S.replace(
         method=args.method, gravity=args.gravity, thermal='on' if args.thermal else 'off',
-        band_width_c=args.band_width, max_predicted_error=args.max_predicted_error,
+        band_width_c=args.band_width or S.band_width_c,
+        max_predicted_error=args.max_predicted_error,
         max_residual_ratio=getattr(args, 'max_residual_ratio', S.max_residual_ratio),
         max_weight_s=getattr(args, 'max_weight_s', S.max_weight_s),
         allow_unconverged=args.force, max_gyro_error=args.max_gyro_error,
@@ -308,6 +323,13 @@ def run(args, out):
     from ..session.finish import finish_session
     from ..session.settings import FIT
     from ..session.windows import Observations, WindowSet
+    if args.calibration is not None:
+        if not args.thermal:
+            raise UsageError('accel-calib: fit --calibration is the calibration a thermal fit '
+                             'extends: add --thermal (DATA: one still pose while the '
+                             'temperature sweeps)')
+        from .fit_thermal import run as run_thermal
+        return run_thermal(args, out)
     if args.output == STDOUT and args.json:
         raise UsageError('accel-calib: fit -o - writes the YAML to standard output: leave out '
                          '--json')
@@ -332,6 +354,9 @@ def run(args, out):
             output=args.output if args.output != STDOUT else None)
     if outcome.cause is not None and not outcome.accepted:  # the arguments', not the data's
         raise InputError(outcome.refusal)
+    if outcome.refusal is not None and not outcome.accepted and args.thermal:
+        from .fit_thermal import one_pose_hint
+        outcome.refusal += one_pose_hint(args, samples)
     cal = outcome.calibration
     if cal is None:
         if args.json:       # still exactly one JSON object, saying why

@@ -56,7 +56,47 @@ def add_arguments(p):
     g.add_argument('--tremor', type=ranged(0.0, 10.0), default=0.0, metavar='DEG',
                    help='RMS angle a trembling hand turns the sensor while it holds a pose, '
                         'degrees (default 0: perfectly still)')
+    g = p.add_argument_group('a climate chamber: one still pose while the temperature cycles '
+                             '(the recording of a thermal calibration)')
+    g.add_argument('--chamber', type=TEMPERATURE, nargs='+', metavar='C',
+                   help='set points the chamber air goes to in turn, °C, starting from --temp '
+                        '(e.g. -18 74 -18: cool, heat, cool again); the sensor, with '
+                        'MPU-9250-like offsets against temperature (16, 15 and 55 mg over '
+                        '-18..74 °C), is held still in one pose (--up)')
+    g.add_argument('--chamber-rate', type=ranged(0.01, 100.0), nargs='+', default=[3.0],
+                   metavar='C_PER_MIN', help='ramp rate to each set point, °C/min (one value '
+                                             'or one per set point; default 3)')
+    g.add_argument('--chamber-hold', type=ranged(0.0, 1e5), default=900.0, metavar='S',
+                   help='hold at each set point, s (default %(default)s)')
+    g.add_argument('--board-tau', type=ranged(0.0, 1e5), default=180.0, metavar='S',
+                   help="the board's time constant behind the chamber air, s (default "
+                        '%(default)s)')
+    g.add_argument('--hysteresis', type=ranged(0.0, 1000.0), default=0.0, metavar='MG',
+                   help='heating minus cooling at the same temperature on the worst axis at '
+                        'the ramp rate, mg (a temperature gradient across the package; '
+                        'default 0)')
+    g.add_argument('--up', choices=('x', '-x', 'y', '-y', 'z', '-z'), default='z',
+                   help='the axis that points up in the chamber (default z)')
     p.add_argument('--json', action='store_true', help='print one JSON object')
+
+
+def _chamber(args, rng):
+    """Return (sensor, programme, direction) of a chamber recording (``--chamber``)."""
+    from ..sim.chamber import ChamberProgramme, thermal_unit
+    if len(args.chamber_rate) not in (1, len(args.chamber)):
+        raise UsageError('accel-calib: --chamber-rate takes one rate or one per set point')
+    if len(args.temp) != 1:
+        raise UsageError('accel-calib: --chamber starts at one --temp (the room), not a ramp')
+    programme = ChamberProgramme(args.chamber, args.chamber_rate, args.chamber_hold,
+                                 args.temp[0], args.board_tau)
+    temps = [args.temp[0], *args.chamber]
+    sensor = thermal_unit(rng, span_c=(min(temps), max(temps)),
+                          hysteresis_mg=args.hysteresis, rate_c_min=float(args.chamber_rate[0]),
+                          temp_ref=args.temp[0], rate_hz=args.rate)
+    axis = 'xyz'.index(args.up[-1])
+    direction = np.zeros(3)
+    direction[axis] = -1.0 if args.up.startswith('-') else 1.0
+    return sensor, programme, direction
 
 
 def _switchable():
@@ -131,6 +171,8 @@ def run(args, out):
     if args.output != STDOUT:
         check_suffix(args.output, ('.csv', '.mcap', '.db3'), 'simulate -o')
     rng = np.random.default_rng(args.seed)
+    if args.chamber:
+        return _run_chamber(args, out, rng)
     effects = [e.strip() for e in args.effects.split(',') if e.strip()]
     known = _known()
     for e in effects:
@@ -221,8 +263,67 @@ def sensor_to_dict(sensor, gravity):
             **({'thermal_lag_s': float(sensor.thermal_lag_s)} if sensor.thermal_lag_s else {}),
             **({'bias_random_walk_m_s2_per_rt_s': sensor.bias_random_walk.tolist()}
                if np.any(sensor.bias_random_walk) else {}),
+            **({'bias_tempco_quadratic_m_s2_per_c2': sensor.bias_tempco_quadratic.tolist(),
+                'bias_tempco_cubic_m_s2_per_c3': sensor.bias_tempco_cubic.tolist()}
+               if np.any(sensor.bias_tempco_quadratic) or np.any(sensor.bias_tempco_cubic)
+               else {}),
+            **({'bias_gradient_m_s2_per_c': sensor.bias_gradient.tolist(),
+                'gradient_tau_s': float(sensor.gradient_tau_s)}
+               if np.any(sensor.bias_gradient) else {}),
+            **({'gyro_bias_tempco_rad_s_per_c': sensor.gyro_bias_tempco.tolist()}
+               if np.any(sensor.gyro_bias_tempco) else {}),
             **({'library_effects': {effect.name: {'params': np.asarray(params, float).tolist(),
                                                   'param_names': list(effect.param_names),
                                                   'unit': effect.unit}
                                     for effect, params in sensor.library_effects}}
                if sensor.library_effects else {})}
+
+
+def _run_chamber(args, out, rng):
+    """Simulate one still pose in a chamber cycle (``--chamber``), streamed to the output."""
+    from .progress import Progress
+    from ..dataio.recording import write_bag, write_samples_csv
+    from ..sim import motion as sim_motion
+    sensor, programme, direction = _chamber(args, rng)
+    total = int(round(programme.duration_s * args.rate))
+    if total > MAX_SIMULATED_SAMPLES:
+        raise UsageError(f'accel-calib: that chamber cycle would have {total:.3g} samples; the '
+                         f'limit is {MAX_SIMULATED_SAMPLES:.3g} (a lower --rate, shorter holds '
+                         'or faster ramps)')
+    last_t = []
+
+    def pieces(bar):
+        for piece in sim_motion.iter_session(sensor, direction[None, :], rng,
+                                             hold_s=programme.duration_s, rate_hz=args.rate,
+                                             gravity=args.gravity, temperature=programme,
+                                             lead_s=0.0):
+            bar.update(len(piece.samples))
+            last_t[:] = [float(piece.samples.t[-1])]
+            yield piece.samples
+
+    with Progress(total, 'simulate') as bar:
+        if args.output.lower().endswith(('.mcap', '.db3')):
+            write_bag(args.output, pieces(bar))
+        else:
+            write_samples_csv(args.output, pieces(bar))
+    truth = sensor_to_dict(sensor, args.gravity)
+    truth['chamber'] = {'set_points_c': list(args.chamber), 'start_c': args.temp[0],
+                        'rates_c_per_min': list(args.chamber_rate),
+                        'hold_s': args.chamber_hold, 'board_tau_s': args.board_tau,
+                        'legs': [{'direction': kind, 't_start_s': float(a), 't_stop_s': float(b)}
+                                 for kind, a, b in programme.legs],
+                        'up': args.up}
+    if args.truth:
+        import yaml
+        from ..dataio.atomic import atomic_write_text
+        atomic_write_text(args.truth, yaml.safe_dump(truth, sort_keys=False))
+    summary = {'output': args.output, 'samples': total, 'poses': 1, 'seconds': last_t[0],
+               'chamber': truth['chamber'], 'truth': truth}
+    if args.json:
+        out(summary)
+    else:
+        print(f'simulated a chamber cycle of {last_t[0] / 60:.0f} min, one still pose ({args.up} '
+              f'up), {total} samples -> '
+              f'{"standard output" if args.output == STDOUT else args.output}',
+              file=sys.stderr if args.output == STDOUT else sys.stdout)
+    return 0

@@ -272,10 +272,42 @@ class Calibration:
             return np.zeros_like(raw)
         return self.thermal.drift(raw, temp)
 
-    def correct(self, raw, temp=None):
-        """Calibrated acceleration (N, 3) m/s² from raw readings (N, 3) m/s²."""
+    @property
+    def hysteresis(self):
+        """Return the heating/cooling term of the thermal tables (``Hysteresis``), or None."""
+        return None if self.thermal is None else self.thermal.hysteresis
+
+    def lag_stream(self):
+        """Return the temperature lag to carry across pieces of a recording, or None."""
+        from .accelerometer.thermal_lag import LagStream
+        h = self.hysteresis
+        return None if h is None else LagStream(h.tau_s)
+
+    def hysteresis_offset(self, time, temp, stream=None):
+        """
+        Return the heating/cooling offset (N, 3) m/s² of readings at ``time`` (N,) s.
+
+        Zero without a hysteresis term, times or temperatures. ``stream`` (``lag_stream``)
+        carries the temperature's lag from one piece of a recording to the next; without
+        it the lag starts in equilibrium at the first reading.
+        """
+        h = self.hysteresis
+        if h is None or time is None or temp is None:
+            return 0.0
+        stream = stream or self.lag_stream()
+        return np.outer(stream.gradient(time, temp), h.offset_per_c)
+
+    def correct(self, raw, temp=None, time=None, stream=None):
+        """
+        Calibrated acceleration (N, 3) m/s² from raw readings (N, 3) m/s².
+
+        :param temp: (N,) °C, or None. :param time: (N,) s: with ``temp``, the thermal
+            tables' hysteresis term applies (``hysteresis_offset``; ``stream`` carries it
+            across pieces).
+        """
         raw = np.atleast_2d(np.asarray(raw, float))
-        return np.linalg.solve(self.T, (raw - self.bias - self.drift(raw, temp)).T).T
+        offset = self.bias + self.drift(raw, temp) + self.hysteresis_offset(time, temp, stream)
+        return np.linalg.solve(self.T, (raw - offset).T).T
 
     def distort(self, true, temp=None):
         """Raw readings (N, 3) that this model predicts for true acceleration (N, 3)."""

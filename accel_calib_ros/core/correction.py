@@ -4,7 +4,10 @@ The correction of one calibration, sample by sample: what the correction node ap
 :class:`Corrector` precomputes a calibration (``core.calibration.Calibration``) into
 plain-float 3x3 arithmetic, so that one sample costs a few microseconds in Python:
 
-- acceleration ``L · T⁻¹ · (raw − bias − drift(raw, temperature))`` and its covariance;
+- acceleration ``L · T⁻¹ · (raw − bias − drift(raw, temperature) − hysteresis)`` and its
+  covariance; the hysteresis term of a one-pose thermal calibration follows the
+  temperature stream's lag (``take_temperature``: the same ``LagState`` as ``apply``'s
+  stream, restarted by a gap, carried over a reload of the same term: ``adopt``);
 - angular rate ``L · Tg⁻¹ · (raw − gyro bias at the temperature)`` (or ``L · (raw −
   bias)`` without a gyro T) and the covariance to publish for the driver's;
 - magnetic field ``L · Rᵀ · T⁻¹ · (raw − hard iron)`` (tesla in, tesla out) and its
@@ -70,6 +73,13 @@ class Corrector:
                 raise InputError('the calibration gives non-finite corrections')
         self._drift_temp = None
         self._coef = None
+        h = None if cal is None else cal.hysteresis
+        self.hysteresis = None if h is None else tuple(float(v) for v in h.offset_per_c)
+        self.lag = None
+        if h is not None:
+            from .accelerometer.thermal_lag import LagState
+            self.lag = LagState(h.tau_s)
+        self._hysteresis_offset = (0.0, 0.0, 0.0)
         self.cov_key = None         # incoming covariances last judged (bytes) ...
         self.wcov = None            # ... the angular-velocity covariance to publish for
         self.cov_finite = True      # them (None = as it came), and whether all are finite
@@ -153,11 +163,52 @@ class Corrector:
             self._drift_temp = temp
         return self._coef
 
+    def take_temperature(self, time_s, temp):
+        """
+        Follow the temperature stream (stamp s, °C) for the hysteresis term; return its gradient.
+
+        The lag restarts (gradient 0) after a silence longer than its ``gap_s`` or a step
+        back in time (``lag.restarts`` counts them); without a hysteresis term, 0.
+        """
+        if self.lag is None:
+            return 0.0
+        g = self.lag.update(time_s, temp)
+        kx, ky, kz = self.hysteresis
+        self._hysteresis_offset = (kx * g, ky * g, kz * g)
+        return g
+
+    def adopt(self, previous):
+        """
+        Keep the temperature lag of the corrector this one replaces (a reload of the file).
+
+        Only when both carry a hysteresis term with the same time constant: the lag is a
+        property of the temperature stream, not of the file.
+        """
+        if (self.lag is not None and previous is not None and previous.lag is not None
+                and previous.lag.tau_s == self.lag.tau_s):
+            self.lag = previous.lag
+            if self.lag.lag is not None:
+                g = self.lag.gradient
+                kx, ky, kz = self.hysteresis
+                self._hysteresis_offset = (kx * g, ky * g, kz * g)
+
+    def outside(self, temp, margin_c=0.0):
+        """Tell whether ``temp`` °C lies beyond the calibrated temperature range (+ margin)."""
+        cal = self.cal
+        if cal is None or not math.isfinite(temp):
+            return False
+        span = cal.thermal.range_c if cal.thermal is not None else None
+        span = span or cal.temperature_range_c
+        return span is not None and not span[0] - margin_c <= temp <= span[1] + margin_c
+
     def correct(self, x, y, z, temp):
         """Corrected (and levelled) (x, y, z) m/s² for one raw sample at ``temp`` °C."""
         if self.M is None:
             return x, y, z
         bx, by, bz = self.bias
+        if self.lag is not None:
+            hx, hy, hz = self._hysteresis_offset
+            bx, by, bz = bx + hx, by + hy, bz + hz
         coef = self.coefficients(temp)
         if coef is not None:
             (qx, lx, ox), (qy, ly, oy), (qz, lz, oz) = coef

@@ -26,13 +26,14 @@ writer puts the same vector in ``gyro_bias_rad_s`` and ``gyro.bias``; the loader
 
 import math
 import os
-import re
 
 import numpy as np
 import yaml
 
+from .thermal_file import thermal_table
 from .units import UNITS
-from ..core.accelerometer.thermal import ThermalBand, ThermalTable
+from .yaml_schema import (_found, _mapping, _matrix, _number, _optional, _string,  # noqa: F401
+                          _vector, Bad as _Bad, load_yaml, nesting_depth, UniqueKeyLoader)
 from ..core.calibration import (Calibration, FIELD_RANGE_UT, gyro_problems, magnetometer_problems,
                                 MagnetometerPart, MAX_CONDITION, MAX_GYRO_BIAS, MAX_HARD_IRON_UT,
                                 METHODS, PARAMETER_NAMES)
@@ -212,128 +213,6 @@ def save_calibration(cal, path):
 
 # -- reading ---------------------------------------------------------------------------
 
-class _UniqueKeys:
-    """Mixin of a YAML loader: a mapping with the same key twice is refused (no last-win)."""
-
-    def construct_mapping(self, node, deep=False):
-        """Build a mapping; a repeated key is a ConstructorError naming it and its line."""
-        if isinstance(node, yaml.MappingNode):
-            self.flatten_mapping(node)
-            seen = {}
-            for key_node, _ in node.value:
-                key = self.construct_object(key_node, deep=True)
-                try:
-                    hash(key)
-                except TypeError:
-                    continue                     # the base class words this one
-                if key in seen:
-                    shown = repr(key) if len(repr(key)) <= 40 else repr(key)[:39] + '…'
-                    raise yaml.constructor.ConstructorError(
-                        None, None, f'duplicate key {shown} (line {seen[key] + 1} and line '
-                        f'{key_node.start_mark.line + 1}): say it once', key_node.start_mark)
-                seen[key] = key_node.start_mark.line
-        return super().construct_mapping(node, deep)
-
-
-class UniqueKeyLoader(_UniqueKeys, yaml.SafeLoader):
-    """A YAML SafeLoader that refuses a mapping with the same key twice."""
-
-
-# libyaml's parser (PyYAML's C extension, in the PyPI wheels and Debian's python3-yaml)
-# reads a file 10-20 times faster: a reload never stalls a node for long.
-_Loader = type('_FastUniqueKeyLoader', (_UniqueKeys, yaml.CSafeLoader), {}) \
-    if getattr(yaml, '__with_libyaml__', False) else UniqueKeyLoader
-
-_QUOTED_OR_COMMENT = re.compile(r"'(?:[^']|'')*'|\"(?:[^\"\\]|\\.)*\"|(?:(?<=\s)|^)#[^\n]*",
-                                re.M)
-
-
-def nesting_depth(text):
-    """
-    Return an upper bound of how deep the collections of YAML ``text`` nest, unparsed.
-
-    Flow brackets (``[``, ``{``) outside quotes and comments, plus a line's indentation
-    (one level per column at most) and its leading ``- `` items; linear in the text.
-    """
-    plain = _QUOTED_OR_COMMENT.sub('', text)
-    steps = np.frombuffer(re.sub(r'[^\[\]{}]', '', plain).encode('ascii'), np.uint8)
-    flow = int(np.cumsum(np.where((steps == 91) | (steps == 123), 1, -1)).max()) \
-        if len(steps) else 0
-    block = max((len(m.group(1)) + m.group(2).count('-')
-                 for m in re.finditer(r'^( *)((?:- +)*)', plain, re.M)), default=0)
-    return flow + block
-
-
-def load_yaml(text):
-    """Parse YAML text safely, refusing duplicate keys (yaml.YAMLError on any problem)."""
-    return yaml.load(text, Loader=_Loader)     # noqa: S506 - a SafeLoader subclass
-
-
-class _Bad(Exception):
-    """Internal: a validation failure with a one-line reason."""
-
-
-def _number(value, name, low=-math.inf, high=math.inf, integer=False):
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise _Bad(f'{name} must be a number, got {type(value).__name__}')
-    if integer and not (isinstance(value, int) or float(value).is_integer()):
-        raise _Bad(f'{name} must be an integer, got {value!r}')
-    try:
-        x = float(value)
-    except OverflowError:
-        raise _Bad(f'{name} is out of range') from None
-    if not math.isfinite(x):
-        raise _Bad(f'{name} must be finite, got {value!r}')
-    if not low <= x <= high:
-        raise _Bad(f'{name} = {x:g} is outside [{low:g}, {high:g}]')
-    return int(x) if integer else x
-
-
-def _vector(value, name, size, low=-math.inf, high=math.inf):
-    if not isinstance(value, (list, tuple)) or len(value) != size:
-        raise _Bad(f'{name} must be a list of {size} numbers')
-    return np.array([_number(v, f'{name}[{k}]', low, high) for k, v in enumerate(value)])
-
-
-def _matrix(value, name, rows, cols):
-    if not isinstance(value, (list, tuple)) or len(value) != rows:
-        raise _Bad(f'{name} must be a {rows}x{cols} list of lists of numbers')
-    return np.vstack([_vector(r, f'{name}[{k}]', cols) for k, r in enumerate(value)])
-
-
-def _mapping(value, name):
-    if not isinstance(value, dict):
-        raise _Bad(f'{name} must be a mapping, got {type(value).__name__}')
-    return value
-
-
-def _string(value, name, max_len=1000):
-    if value is None:
-        return ''
-    if isinstance(value, bool) or not isinstance(value, (str, int, float)):
-        raise _Bad(f'{name} must be text')
-    text = str(value)
-    if len(text) > max_len:
-        raise _Bad(f'{name} is longer than {max_len} characters')
-    return text
-
-
-def _found(value):
-    """Say what a value is, for a message: type and (short) value."""
-    kinds = {bool: 'the boolean', str: 'the string', int: 'the integer', float: 'the number',
-             type(None): 'nothing (the key is missing or empty)'}
-    kind = kinds.get(type(value), f'a {type(value).__name__}')
-    if value is None:
-        return kind
-    text = repr(value)
-    return f'{kind} {text if len(text) <= 30 else text[:29] + "…"}'
-
-
-def _optional(d, key, parse):
-    value = d.get(key)
-    return None if value is None else parse(value)
-
-
 def _validate_T(T):
     if np.any(np.tril(T, -1) != 0):
         raise _Bad('T must be upper triangular (raw = T @ true + bias)')
@@ -379,44 +258,6 @@ def _magnetometer_part(value):
             v, 'magnetometer.predicted_accuracy', 0.0, FIELD_RANGE_UT[1])),
         noise_std_uT=_optional(m, 'noise_std_uT', lambda v: _number(
             v, 'magnetometer.noise_std_uT', 0.0, FIELD_RANGE_UT[1])))
-
-
-def _thermal(value, gravity_raw):
-    d = _mapping(value, 'thermal')
-    width = _number(d.get('band_width_c'), 'thermal.band_width_c', 1e-3, 1e3)
-    bands_in = d.get('bands', [])
-    if not isinstance(bands_in, list) or len(bands_in) > MAX_BANDS:
-        raise _Bad(f'thermal.bands must be a list of at most {MAX_BANDS} bands')
-    lo_t, hi_t = TEMPERATURE_RANGE
-    bands = []
-    for k, b in enumerate(bands_in):
-        name = f'thermal.bands[{k}]'
-        b = _mapping(b, name)
-        low = _number(b.get('low_c'), f'{name}.low_c', lo_t, hi_t)
-        high = _number(b.get('high_c'), f'{name}.high_c', lo_t, hi_t)
-        if not low < high:
-            raise _Bad(f'{name}: low_c must be below high_c')
-        temp = _number(b.get('temp_c'), f'{name}.temp_c', lo_t, hi_t)
-        quad = _vector(b.get('quadratic_per_m_s2'), f'{name}.quadratic_per_m_s2', 3,
-                       -1.0 / gravity_raw, 1.0 / gravity_raw)
-        lin = _vector(b.get('linear'), f'{name}.linear', 3, -1.0, 1.0)
-        off = _vector(b.get('offset_m_s2'), f'{name}.offset_m_s2', 3, -gravity_raw,
-                      gravity_raw)
-        windows = _number(b.get('windows', 0), f'{name}.windows', 0, 1e12, integer=True)
-        status = _string(b.get('status', 'ok'), f'{name}.status')
-        rms = _optional(b, 'residual_rms_m_s2',
-                        lambda v: _number(v, f'{name}.residual_rms_m_s2', 0.0))
-        gyro = _optional(b, 'gyro_bias_rad_s',
-                         lambda v: _vector(v, f'{name}.gyro_bias_rad_s', 3, -MAX_GYRO_BIAS,
-                                           MAX_GYRO_BIAS))
-        if status == 'ok' and not low <= temp <= high:
-            raise _Bad(f'{name}: temp_c {temp:g} lies outside its band [{low:g}, {high:g}]')
-        bands.append(ThermalBand(low, high, temp, quad, lin, off, windows, status,
-                                 float('nan') if rms is None else rms, gyro))
-    for a, b in zip(bands, bands[1:]):
-        if not a.high_c <= b.low_c + 1e-9:
-            raise _Bad('thermal bands must be ordered by temperature and must not overlap')
-    return ThermalTable(width, bands)
 
 
 def _input_units(value):
@@ -497,7 +338,8 @@ def _calibration(d):
         converged=converged,
         seconds=0.0 if fit.get('seconds') is None else _number(fit['seconds'],
                                                                'fit.seconds', 0.0),
-        thermal=_optional(d, 'thermal', lambda v: _thermal(v, gravity_raw)),
+        thermal=_optional(d, 'thermal', lambda v: thermal_table(v, gravity_raw, MAX_BANDS,
+                                                                TEMPERATURE_RANGE)),
         created=_string(d.get('created'), 'created', 100),
         source=_string(d.get('source'), 'source'),
         predicted_accuracy=_optional(d, 'predicted_accuracy_m_s2', lambda v: _number(

@@ -117,11 +117,18 @@ def fold_maps(basis, folds):
     maps = []
     for block in folds:
         q = basis[block]
-        m = np.eye(len(block)) - q @ q.T
-        if np.linalg.svd(m, compute_uv=False).min() < 1e-6:
+        # I - q qᵀ has the eigenvalues 1 - s² of q's singular values s (and 1): its inverse
+        # is I + q (I - qᵀ q)⁻¹ qᵀ (Woodbury), a p x p solve instead of a b x b one.
+        gram = q.T @ q
+        s2 = np.linalg.eigvalsh(gram) if gram.size else np.zeros(0)
+        least = min(1.0 - float(s2.max()) if s2.size else 1.0,
+                    1.0 if len(block) > q.shape[1] else float(1.0 - s2.min()))
+        if least < 1e-6:
             maps.append(None)
         else:
-            maps.append(np.linalg.inv(m))
+            m = q @ np.linalg.solve(np.eye(q.shape[1]) - gram, q.T)
+            m[np.diag_indices(len(block))] += 1.0
+            maps.append(m)
     return maps
 
 
@@ -147,7 +154,8 @@ def cv_better(cv_with, cv_without):
 
 def cv_tied(cv_a, cv_b):
     """Tell whether two held-out chi² per fold (K,) differ by less than twice their paired SE."""
-    d = np.asarray(cv_a, float) - np.asarray(cv_b, float)
+    with np.errstate(invalid='ignore'):
+        d = np.asarray(cv_a, float) - np.asarray(cv_b, float)
     if not np.all(np.isfinite(d)):
         return True
     se = np.sqrt(len(d)) * float(np.std(d, ddof=1)) if len(d) > 1 else 0.0

@@ -91,6 +91,13 @@ class Effect:
     modelled_by_thermal_tables = False
     """The calibration's temperature-band tables model it: the calibration node does not
     report it missing when the calibration has usable bands (``session.gap``)."""
+    one_pose = False
+    """One still pose while the temperature sweeps can show it (``modelgap.still_pose``: per-axis
+    offsets in temperature and time; no direction, no scale)."""
+    heating = False
+    """It depends on the direction of the temperature's change: its columns change sign
+    where the session heats instead of cools (``reverse_heating``), and its size counts what
+    it does in the direction a one-pose recording did not run (``modelgap.still_pose``)."""
 
     # -- the simulator ----------------------------------------------------------------------
 
@@ -233,6 +240,10 @@ class Effect:
         """
         return None
 
+    def reverse_heating(self, cols):
+        """Return its columns (N, 3, k) at the same temperatures run the other way."""
+        return -cols if self.heating else cols
+
     # -- what to record to tell it from another --------------------------------------------------
 
     def separation_advice(self, other, c):
@@ -265,6 +276,10 @@ class Effect:
                 return ('change the temperature faster than the die follows it (a step, or '
                         'warm-up and cool-down), or hold each temperature until the die '
                         'settles')
+            if self.history and other.history:
+                return ('ramp at two different rates, with holds between them: a die that lags '
+                        "moves the offset by the curve's slope times its lag, a gradient by "
+                        'the rate whatever the slope')
         return ''
 
     # -- the simulator ----------------------------------------------------------------------
@@ -330,3 +345,24 @@ def _per_axis(values):
     for i in range(3):
         cols[:, i, i] = values[:, i]
     return cols
+
+
+MONOTONIC = 0.9
+"""On one still pose, a rank correlation of temperature with time beyond this hides a
+time effect in the offset's curve."""
+
+
+def still_time_reason(context, baseline):
+    """
+    Return why a time effect cannot be tested on one still pose here, or ''.
+
+    The one-pose baseline follows the offset along the temperature; while the temperature
+    only rises (or only falls), time is a function of it, and a drift or a wander is one
+    more bend of that curve.
+    """
+    r = context.get('time_temp_rank', 0.0)
+    if baseline != 'still' or abs(r) <= MONOTONIC:
+        return ''
+    return (f'temperature and time move together in this recording (rank correlation '
+            f"{r:+.2f}): a change with time is a bend of the offset's curve here; let the "
+            'temperature fall and rise again (a chamber cycle) to tell them apart')

@@ -45,7 +45,7 @@ virtual device.
 
 import numpy as np
 
-from .effect import _per_axis, Effect, PerAxisEffect
+from .effect import _per_axis, Effect, PerAxisEffect, still_time_reason
 from .walk import BiasRandomWalk
 from ..core.constants import G0
 
@@ -170,10 +170,13 @@ class BiasDrift(PerAxisEffect):
     sensor_range = (0.5e-3, 2e-3)
     sensor_field = 'bias_drift'
     drawn_always = True
+    one_pose = True
 
     def applicable(self, context, baseline):
         span = context.get('time_span', 0.0)
-        return '' if span >= 30.0 else f'the session lasts only {span:.0f} s'
+        if span < 30.0:
+            return f'the session lasts only {span:.0f} s'
+        return still_time_reason(context, baseline)
 
     def columns(self, accel, temp, time, gravity=G0):
         return _per_axis(np.repeat(time[:, None], 3, axis=1))
@@ -274,6 +277,7 @@ class TemperatureLag(PerAxisEffect):
     sensor_field = 'bias_tempco'
     sensor_settings = (('thermal_lag_s', 120.0),)
     on_device = False
+    one_pose = True
     sim_note = 'the offset follows a die temperature 1-5 min behind the recorded one'
 
     SENSOR_TAU_S = (60.0, 300.0)
@@ -285,8 +289,13 @@ class TemperatureLag(PerAxisEffect):
     START_GRID = (0.0, 0.03, 0.1, 0.2, 0.35, 0.6, 1.0)
     """How far the die lags at the first window, as a share of slope x tau (see ``bind``)."""
 
-    def __init__(self, tau=None, time=None, lag=None, start=0.0):
+    def __init__(self, tau=None, time=None, lag=None, start=0.0, die=False):
         self.tau, self._time, self._lag, self.start = tau, time, lag, start
+        if die:
+            # One still pose (``modelgap.still_pose``): the offset curve at the die's temperature,
+            # linearised, a share of the lag tau per axis; it turns with the heating.
+            self.unit = 'share of tau: the die lags by share x tau'
+            self.heating = True
 
     def applicable(self, context, baseline):
         reason = TemperatureBias.applicable(self, context, baseline)
@@ -327,6 +336,12 @@ class TemperatureLag(PerAxisEffect):
         time, temp = c.time[order], c.temp[order]
         behind = starts * start_slope(time, temp) * taus
         lags = lagged(time, temp, taus, behind)
+        slope = getattr(c, 'slope', None)
+        if slope is not None:
+            # One still pose: offset(θ_die) - offset(θ) = offset'(θ) (θ_lag - θ) per axis.
+            return [TemperatureLag(float(tau), time, (lag - temp)[:, None] * slope[order],
+                                   float(start), die=True)
+                    for tau, start, lag in zip(taus, starts, lags)]
         return [TemperatureLag(float(tau), time, lag - lag.mean(), float(start))
                 for tau, start, lag in zip(taus, starts, lags)]
 
@@ -381,6 +396,9 @@ class TemperatureLag(PerAxisEffect):
     def columns(self, accel, temp, time, gravity=G0):
         if self._time is None:
             raise ValueError('temperature_lag needs a session: use bind(conditions, tau)')
+        if self._lag.ndim == 2:
+            return _per_axis(np.column_stack([np.interp(time, self._time, self._lag[:, i])
+                                              for i in range(3)]))
         value = np.interp(time, self._time, self._lag)
         return _per_axis(np.repeat(value[:, None], 3, axis=1))
 
@@ -388,6 +406,12 @@ class TemperatureLag(PerAxisEffect):
         return f'{1000 * value / gravity:+.3f} mg/°C'
 
     def magnitude(self, params, gravity=G0, sensitivity=(1.0, 1.0, 1.0)):
+        if self._lag is not None and self._lag.ndim == 2:
+            share = np.asarray(params, float)
+            return ('the offset follows a die temperature that lags the reported one by '
+                    + ', '.join(f'{axis} {v * self.tau:.3g} s' for axis, v in zip('xyz', share))
+                    + f' (shares {", ".join(f"{v:+.2f}" for v in share)} of tau = '
+                    f'{self.tau:.3g} s)')
         return (super().magnitude(params, gravity, sensitivity)
                 + f'; the die lags the reported temperature by tau = {self.tau:.3g} s')
 
@@ -400,9 +424,101 @@ class TemperatureLag(PerAxisEffect):
         sensor.thermal_lag_s = float(rng.uniform(*self.SENSOR_TAU_S))
 
 
+class TemperatureRate(PerAxisEffect):
+    name = 'temperature_rate'
+    description = ('the offset follows the rate of temperature change smoothed over tau (a '
+                   'temperature gradient across the package): heating reads differently from '
+                   'cooling at the same temperature')
+    param_names = ('k_x', 'k_y', 'k_z')
+    unit = 'm/s² per °C of gradient (the temperature minus its first-order lag tau)'
+    variable = 'temperature'
+    history = True
+    searched = 1
+    continuous_search = True
+    one_pose = True
+    heating = True
+    on_device = False
+    label = 'offset with the heating rate'
+    sim_note = ('a temperature gradient across the package (sim.chamber: accel-calib simulate '
+                '--chamber --hysteresis MG)')
+
+    TAU_GRID = 12
+    """Time constants tried (log-spaced) before the best one is refined."""
+
+    def __init__(self, tau=None, time=None, gradient=None):
+        self.tau, self._time, self._gradient = tau, time, gradient
+
+    def applicable(self, context, baseline):
+        if baseline != 'still':
+            return ('tested on one still pose while the temperature sweeps (diagnose '
+                    '--calibration, fit --thermal --calibration)')
+        reason = TemperatureBias.applicable(self, context, baseline)
+        if reason:
+            return reason
+        span = context.get('time_span', 0.0)
+        return '' if span >= 300.0 else f'the recording lasts only {span:.0f} s'
+
+    def tau_range(self, c):
+        """
+        Return the smoothing times worth trying, s.
+
+        From twice the spacing of the bins (at least 5 s) to a quarter of the recording (at
+        most 30 min).
+        """
+        span = max(c.time_span, 1.0)
+        spacing = float(np.median(np.diff(np.sort(c.time)))) if len(c.time) > 1 else 1.0
+        low = max(2.0 * spacing, 5.0)
+        return np.geomspace(low, max(min(0.25 * span, 1800.0), 2.0 * low), self.TAU_GRID)
+
+    def bind(self, c, tau=None):
+        """Return the effect bound to this session's temperature history at ``tau`` s."""
+        from ..core.accelerometer.thermal_lag import GAP_S, lagged_temperature
+        tau = float(np.median(self.tau_range(c))) if tau is None else float(tau)
+        order = np.argsort(c.time, kind='stable')
+        time, temp = c.time[order], c.temp[order]
+        spacing = float(np.median(np.diff(time))) if len(time) > 1 else 1.0
+        gradient = temp - lagged_temperature(time, temp, tau, max(GAP_S, 1.5 * spacing))
+        return TemperatureRate(tau, time, gradient)
+
+    def bindings(self, c):
+        return [self.bind(c, tau) for tau in self.tau_range(c)]
+
+    def search(self, c, score):
+        """Return the binding that scores best: the grid of tau, then refined in between."""
+        from scipy import optimize
+        grid = self.tau_range(c)
+        scores = [score(self.bind(c, tau)) for tau in grid]
+        k = int(np.argmax(scores))
+        low, high = np.log(grid[max(k - 1, 0)]), np.log(grid[min(k + 1, len(grid) - 1)])
+        found = optimize.minimize_scalar(lambda v: -score(self.bind(c, np.exp(v))),
+                                         bounds=(low, high), method='bounded',
+                                         options={'xatol': 0.005})
+        best = np.exp(found.x) if -found.fun > scores[k] else grid[k]
+        return self.bind(c, best)
+
+    def same_binding(self, other):
+        return abs(np.log(other.tau / self.tau)) < 0.005
+
+    def searched_values(self):
+        return {} if self.tau is None else {'tau_s': float(self.tau)}
+
+    def columns(self, accel, temp, time, gravity=G0):
+        if self._time is None:
+            raise ValueError('temperature_rate needs a session: use bind(conditions, tau)')
+        value = np.interp(time, self._time, self._gradient)
+        return _per_axis(np.repeat(value[:, None], 3, axis=1))
+
+    def axis_text(self, value, gravity):
+        return f'{1000 * value * self.tau / 60.0 / gravity:+.3f} mg per °C/min'
+
+    def magnitude(self, params, gravity=G0, sensitivity=(1.0, 1.0, 1.0)):
+        return (super().magnitude(params, gravity, sensitivity)
+                + f' of heating (the rate smoothed over tau = {self.tau:.3g} s)')
+
+
 EFFECTS = {effect.name: effect for effect in (
     Nonorthogonality(), ScaleNonlinearity(), TemperatureBias(), TemperatureScale(),
-    BiasDrift(), TemperatureLag(), BiasRandomWalk())}
+    BiasDrift(), TemperatureLag(), TemperatureRate(), BiasRandomWalk())}
 """The effect library, by spec name."""
 
 

@@ -32,8 +32,7 @@ import numpy as np
 from .criterion import (COLLINEAR, cv_folds, decide, evaluate, fold_maps, P_SUPPORT,
                         RIVAL_BIC, support_stats, Trial)
 from .effects import EFFECTS, G0
-from .evidence import worst_case_mg, WorstGrid
-from .model import Conditions
+from .evidence import worst_case_mg
 from .noise import null_gap_limit
 from .probes import FAMILY
 from .pruning import SLOW_FACTOR
@@ -136,9 +135,8 @@ class Design:
         self.fits, self.final, self.n, self.nu = fits, final, fits.n, fits.nu
         self.noise_dof = fits.noise_dof
         self.coloured = coloured
-        self.grid = WorstGrid(final.model, final.fit.x, fits.c, SIM_CONDITIONS, SIM_DIRECTIONS,
-                              SIM_DIRECTIONS)
-        self.absorbed = self._absorbed()
+        self.grid = fits.power_grid(final, SIM_CONDITIONS, SIM_DIRECTIONS)
+        self.absorbed = fits.absorbed(final, self.grid)
         self.threshold, self.folds = fits.threshold, fits.folds
         searched = sum(e.searched for e in final.bound.values())
         cols = final.fit.jac if extra is None else np.hstack([final.fit.jac, extra])
@@ -153,36 +151,10 @@ class Design:
         self.stacks = {n: _stack(options) for n, options in self.options.items()}
         self.offset = fits._columns(final, _Offset())        # (N, 3): per unit offset
         self._mark_confounded()
-        x = final.fit.x
-        a = final.model.true_accel(x, fits.c)
-        along = np.linalg.solve(final.model.split(x)[0].T,
-                                (a / np.linalg.norm(a, axis=1)[:, None]).T).T
-        self.s = np.sqrt(np.sum((along * fits.c.sigma) ** 2, axis=1))     # noise along g
-        self.T_inv = np.linalg.inv(final.model.split(x)[0])
+        self.s = fits.noise_scale(final)             # the noise of each residual
+        self.T_inv = np.linalg.inv(final.model.split(final.fit.x)[0])
+        self.row_window = fits.row_window            # the window of each residual
         self.corr = self._correlations()
-
-    def _absorbed(self):
-        """
-        Return what the model takes up of a residual, in corrected acceleration, (D, 3, N).
-
-        Readings on the worst-case grid that follow the final model; d(corrected
-        acceleration)/d(parameters) by differences, times the least-squares map from a
-        residual to the parameters' change (the pseudo-inverse of the fit's Jacobian), mg.
-        """
-        final, c = self.final, self.fits.c
-        dirs, temp, time = self.grid.rows()
-        at = Conditions(np.zeros_like(dirs), np.ones_like(dirs), temp, time, c.gravity,
-                        c.temp_span, c.time_span)
-        x = final.fit.x
-        at.readings = final.model.predict(x, dirs, at)
-        a0 = final.model.true_accel(x, at)
-        slopes = np.empty(dirs.shape + (len(x),))
-        for j in range(len(x)):
-            step = 1e-6 * max(abs(x[j]), 1e-3)
-            moved = x.copy()
-            moved[j] += step
-            slopes[:, :, j] = (final.model.true_accel(moved, at) - a0) / step
-        return 1000.0 / G0 * slopes @ np.linalg.pinv(final.fit.jac)
 
     def _mark_confounded(self):
         """

@@ -472,6 +472,12 @@ class DiagnoseResult:
             'not_testable': self.skipped,
         }
 
+    def rest_words(self):
+        """Return what a rest without a smooth trend is, in words."""
+        return ('no smooth trend in time, temperature, direction or magnitude: a scatter from '
+                'pose to pose (e.g. bias instability, the mount shifting between poses, or '
+                'noise correlated beyond a window)')
+
     def power_text(self):
         """Return the power line of the text: what the workflow would have named."""
         power = self.power()
@@ -541,7 +547,5 @@ class DiagnoseResult:
                     f'{name} ({p["rms_mg"]:.2g} mg RMS, p = {p["p"]:.1e})'
                     for name, p in found))
             else:
-                lines.append('no smooth trend in time, temperature, direction or magnitude: '
-                             'a scatter from pose to pose (e.g. bias instability, the mount '
-                             'shifting between poses, or noise correlated beyond a window)')
+                lines.append(self.rest_words())
         return '\n'.join(lines)

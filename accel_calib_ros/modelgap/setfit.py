@@ -302,6 +302,48 @@ class SessionFits:
             full._worst[key] = 1000.0 * float(np.max(err)) / G0
         return full._worst[key]
 
+    # -- the geometry the power simulation asks for (``power.Design``) -------------------
+
+    @property
+    def row_window(self):
+        """Return the window each residual belongs to, (N,): one residual per window."""
+        return np.arange(self.n)
+
+    def noise_scale(self, setfit):
+        """Return the noise of each residual, m/s²: each window mean's along gravity."""
+        x = setfit.fit.x
+        a = setfit.model.true_accel(x, self.c)
+        along = np.linalg.solve(setfit.model.split(x)[0].T,
+                                (a / np.linalg.norm(a, axis=1)[:, None]).T).T
+        return np.sqrt(np.sum((along * self.c.sigma) ** 2, axis=1))
+
+    def power_grid(self, setfit, conditions, directions):
+        """Return the worst-case grid of the naming simulation (``evidence.WorstGrid``)."""
+        return WorstGrid(setfit.model, setfit.fit.x, self.c, conditions, directions, directions)
+
+    def absorbed(self, setfit, grid):
+        """
+        Return what the model takes up of a residual, in corrected acceleration, (D, 3, N).
+
+        Readings on the worst-case grid that follow the model; d(corrected acceleration)/
+        d(parameters) by differences, times the least-squares map from a residual to the
+        parameters' change (the pseudo-inverse of the fit's Jacobian), mg.
+        """
+        c = self.c
+        dirs, temp, time = grid.rows()
+        at = Conditions(np.zeros_like(dirs), np.ones_like(dirs), temp, time, c.gravity,
+                        c.temp_span, c.time_span)
+        x = setfit.fit.x
+        at.readings = setfit.model.predict(x, dirs, at)
+        a0 = setfit.model.true_accel(x, at)
+        slopes = np.empty(dirs.shape + (len(x),))
+        for j in range(len(x)):
+            step = 1e-6 * max(abs(x[j]), 1e-3)
+            moved = x.copy()
+            moved[j] += step
+            slopes[:, :, j] = (setfit.model.true_accel(moved, at) - a0) / step
+        return 1000.0 / G0 * slopes @ np.linalg.pinv(setfit.fit.jac)
+
     @property
     def grid(self):
         """Return the directions and conditions of the worst case (``evidence.WorstGrid``)."""
@@ -335,6 +377,13 @@ class SessionFits:
                       [self.size(setfit, base, name)], [self.cv(setfit)],
                       [self.veto(name, setfit)])
         return trial, setfit
+
+    def where(self, setfit, top=3):
+        """Return the strongest correlations of the residuals of ``setfit`` with the variables."""
+        from .evidence import strongest_correlations
+        a = setfit.model.true_accel(setfit.fit.x, self.c)
+        return strongest_correlations(setfit.fit.residuals, self.c,
+                                      a / np.linalg.norm(a, axis=1, keepdims=True), top)
 
     def signature(self, setfit, name, given):
         """Return the orthonormal signature of ``name`` (as in ``setfit``) past ``given``."""

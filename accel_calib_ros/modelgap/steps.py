@@ -10,13 +10,7 @@ import numpy as np
 
 from .criterion import evaluate, Trial
 from .effects import EFFECTS
-from .evidence import strongest_correlations
 from .selection import ambiguity_notes, member_support
-
-
-def _directions(setfit, c):
-    a = setfit.model.true_accel(setfit.fit.x, c)
-    return a / np.linalg.norm(a, axis=1, keepdims=True)
 
 
 def record_steps(result, chosen):
@@ -60,8 +54,7 @@ def record_steps(result, chosen):
                                      'delta_bic': float(joint['bic'][0, 0])}
         steps.append({'effect': name, 'gap_before': before.gap, 'gap_after': after.gap,
                       'evidence': evidence,
-                      'where': strongest_correlations(before.fit.residuals, c,
-                                                      _directions(before, c))})
+                      'where': fits.where(before)})
     result.steps = steps
     result.fits = [s.fit for s in chain]
     result.final_set = chain[-1]

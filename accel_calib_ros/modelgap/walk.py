@@ -12,7 +12,7 @@ are ``walk_design``, ``walk_rate_low`` and ``walk_smoothness_p``.
 
 import numpy as np
 
-from .effect import Effect
+from .effect import Effect, still_time_reason
 from ..core.constants import G0
 
 
@@ -87,6 +87,7 @@ class BiasRandomWalk(Effect):
     unit = 'm/s²'
     variable = 'time'
     free_curve = True
+    one_pose = True
     nests = ('bias_drift',)
     datasheet_unit = 'g per √s (not in the datasheet)'
     datasheet = 0.1e-3
@@ -118,7 +119,9 @@ class BiasRandomWalk(Effect):
         if span < 60.0:
             return f'the session lasts only {span:.0f} s'
         windows = context.get('windows', 0)
-        return '' if windows >= 30 else f'{windows} windows are too few to follow a wander'
+        if windows < 30:
+            return f'{windows} windows are too few to follow a wander'
+        return still_time_reason(context, baseline)
 
     def bind(self, c, degree=2):
         return BiasRandomWalk(degree, float(np.min(c.time)), float(max(np.ptp(c.time), 1e-9)))
@@ -250,7 +253,7 @@ class BiasRandomWalk(Effect):
         path -= path.mean(axis=1, keepdims=True)
         worst = np.max(np.linalg.norm(path @ design.T_inv.T, axis=2), axis=1) * 1000.0 / G0
         path /= worst[:, None, None]
-        return np.einsum('rni,ni->rn', path, design.offset)
+        return np.einsum('rni,ni->rn', path[:, design.row_window], design.offset)
 
     def replay_veto(self, stack, params, chi2, design):
         """Return 'too smooth' for replicates whose fitted walk is not rough enough (above)."""

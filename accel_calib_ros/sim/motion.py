@@ -168,6 +168,8 @@ def iter_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=100.0,
     up = np.array([0.0, 0.0, gravity])
     die = _DieTemperature(getattr(sensor, 'thermal_lag_s', 0.0), dt)
     walk = _RandomWalk(getattr(sensor, 'bias_random_walk', np.zeros(3)), dt)
+    gradient = _Gradient(sensor, dt)
+    gyro_tempco = np.asarray(getattr(sensor, 'gyro_bias_tempco', np.zeros(3)), float)
     gyro_bias = np.asarray(getattr(sensor, 'gyro_bias', np.zeros(3)), float)  # raw = true + b
     gyro_noise = np.asarray(getattr(sensor, 'gyro_noise_std', 0.002), float)  # rad/s
     gyro_T = np.asarray(getattr(sensor, 'gyro_T', np.eye(3)), float)
@@ -180,6 +182,7 @@ def iter_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=100.0,
     # The new effects draw from their own generator, spawned only when they are on, so
     # that switching them off leaves every other draw (and the session) unchanged.
     extra = _spawn(rng) if (mag is not None or tremor_deg > 0) else None
+    reported = _ReportedTemperature(sensor, rng)
     wobble = _Wobble(segments, tremor_deg, extra) if tremor_deg > 0 else None
 
     def hold_rotation(index, k, i):
@@ -242,12 +245,16 @@ def iter_session(sensor, directions, rng, hold_s=3.0, move_s=1.5, rate_hz=100.0,
             gyro = (true_rate @ gyro_T.T if scaled else true_rate) \
                 + rng.standard_normal((m, 3)) * gyro_noise
             gyro += gyro_bias
+            temp = temp_at(t)
+            theta = die(temp)
+            if np.any(gyro_tempco):
+                gyro += (theta - sensor.temp_ref)[:, None] * gyro_tempco
             if gyro_lsb > 0:
                 gyro = np.round(gyro / gyro_lsb) * gyro_lsb
             if np.isfinite(full_scale):
                 np.clip(gyro, -full_scale, full_scale, out=gyro)
-            temp = temp_at(t)
-            raw = sensor.measure(true_accel, rng, die(temp), t, walk(m, rng))
+            raw = sensor.measure(true_accel, rng, theta, t, gradient(temp, walk(m, rng)))
+            temp = reported(temp)
             pose = np.full(m, -1 if moving else k)
             field_body = raw_mag = None
             if mag is not None:
@@ -282,6 +289,44 @@ class _DieTemperature:
         out, _ = signal.lfilter([1.0 - a], [1.0, -a], temp, zi=[a * self.state])
         self.state = float(out[-1])
         return out
+
+
+class _Gradient:
+    """
+    The offset of a temperature gradient across the package, across chunks.
+
+    The gradient is the reported temperature minus its first-order lag (``gradient_tau_s``):
+    about tau times the rate of temperature change, positive while heating; the offset is
+    ``bias_gradient`` times it (0 at the start: in equilibrium).
+    """
+
+    def __init__(self, sensor, dt):
+        self.k = np.asarray(getattr(sensor, 'bias_gradient', np.zeros(3)), float)
+        self.lag = _DieTemperature(float(getattr(sensor, 'gradient_tau_s', 60.0)), dt) \
+            if np.any(self.k) else None
+
+    def __call__(self, temp, offset=None):
+        """Return ``offset`` (m, 3) or None, plus the gradient's offset for ``temp`` (m,)."""
+        if self.lag is None:
+            return offset
+        extra = (temp - self.lag(temp))[:, None] * self.k
+        return extra if offset is None else offset + extra
+
+
+class _ReportedTemperature:
+    """The temperature as the sensor reports it: noise and its step (own random stream)."""
+
+    def __init__(self, sensor, rng):
+        self.std = float(getattr(sensor, 'temp_noise_std', 0.0))
+        self.lsb = float(getattr(sensor, 'temp_lsb', 0.0))
+        self.rng = _spawn(rng) if self.std > 0 else None
+
+    def __call__(self, temp):
+        if self.rng is not None:
+            temp = temp + self.rng.standard_normal(len(temp)) * self.std
+        if self.lsb > 0:
+            temp = np.round(temp / self.lsb) * self.lsb
+        return temp
 
 
 class _RandomWalk:
@@ -426,6 +471,14 @@ def simulate_static_windows(sensor, directions, rng, hold_s=3.5, count=250, grav
     if np.any(k):
         steps = rng.standard_normal((n, 3)) * k * np.sqrt(np.diff(t, prepend=0.0))[:, None]
         offset = np.cumsum(steps, axis=0)
+    if np.any(getattr(sensor, 'bias_gradient', 0.0)) and callable(temperature):
+        tau = float(sensor.gradient_tau_s)
+        dt = min(hold_s / 10.0, tau / 20.0)
+        fine = np.arange(0.0, t[-1] + dt, dt)
+        reported = np.asarray(temperature(fine), float) * np.ones(len(fine))
+        lagged = np.interp(t, fine, _DieTemperature(tau, dt)(reported))
+        extra = (temp - lagged)[:, None] * sensor.bias_gradient
+        offset = extra if offset is None else offset + extra
     mean = simulate_window_means(sensor, directions, counts, rng, gravity, die, t, offset)
     return StaticWindows(np.zeros(n, int), counts, mean, np.tile(sensor.noise_std, (n, 1)),
                          counts, t, temp)

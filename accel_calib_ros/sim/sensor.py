@@ -12,11 +12,17 @@ The forward model, for true specific force ``a`` (m/s², body frame), temperatur
 
 ``theta`` is the die temperature: the reported temperature itself, or, with
 ``thermal_lag_s`` > 0, its first-order lag (the die warms up minutes behind the
-temperature sensor). ``w(t)`` is a random walk of the offset (``bias_random_walk``,
-m/s² per √s), zero unless switched on. Both need the session's history, so they act
-in ``sim.motion`` (``iter_session``, ``simulate_session``,
-``simulate_static_windows``), not in
-``distort``.
+temperature sensor). The offset may bend with temperature beyond the straight line
+(``bias_tempco_quadratic``, ``bias_tempco_cubic``: terms in (theta - temp_ref)² and ³).
+``w(t)`` is a random walk of the offset (``bias_random_walk``, m/s² per √s), zero unless
+switched on. A temperature gradient across the package adds an offset that follows the
+rate of temperature change (``bias_gradient``, m/s² per °C of gradient, the gradient being
+the reported temperature minus its first-order lag with ``gradient_tau_s``: about
+``gradient_tau_s`` x the heating rate): heating and cooling then read differently at the
+same reported temperature (hysteresis). These need the session's history, so they act in
+``sim.motion`` (``iter_session``, ``simulate_session``, ``simulate_static_windows``), not
+in ``distort``. The reported temperature itself may carry noise (``temp_noise_std``) and
+the sensor's step (``temp_lsb``).
 
 ``T`` is upper triangular (scale times non-orthogonality, Sun & Xu eq. 1-4).
 Each physical effect has its own field and is off when that field is zero, so
@@ -81,6 +87,17 @@ class SensorModel:
     :param thermal_lag_s: time constant of the die temperature behind the reported one,
         s (0: none): the temperature effects follow the lagged temperature.
     :param bias_random_walk: (3,) random walk of the offset, m/s² per √s (0: none).
+    :param bias_tempco_quadratic: (3,) offset curvature, m/s² per °C².
+    :param bias_tempco_cubic: (3,) offset third-order term, m/s² per °C³.
+    :param bias_gradient: (3,) offset per °C of temperature gradient across the package,
+        m/s² per °C (the gradient: reported temperature minus its lag ``gradient_tau_s``).
+    :param gradient_tau_s: time constant of that gradient, s.
+    :param gyro_bias_tempco: (3,) gyroscope offset drift, rad/s per °C of die temperature.
+    :param temp_noise_std: noise of the reported temperature, °C (0: none).
+    :param temp_lsb: step of the reported temperature, °C (0: none; MPU-9250 1/333.87).
+    :param bias_curve: (temps (M,) °C, offsets (M, 3) m/s²): an offset against the die
+        temperature beyond the polynomial terms, linear between its points (a curve no
+        polynomial holds), or None.
     :param library_effects: ((Effect, params), ...): model-gap library effects without a
         field here, each adding ``Effect.apply(params, a, theta - temp_ref, t)`` (empty: none).
     """
@@ -102,15 +119,26 @@ class SensorModel:
     magnetometer: Optional['MagnetometerModel'] = None
     thermal_lag_s: float = 0.0
     bias_random_walk: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    bias_tempco_quadratic: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    bias_tempco_cubic: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    bias_gradient: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    gradient_tau_s: float = 60.0
+    gyro_bias_tempco: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    temp_noise_std: float = 0.0
+    temp_lsb: float = 0.0
+    bias_curve: Optional[tuple] = None
     library_effects: tuple = ()
 
     def __post_init__(self):
         self.T = np.asarray(self.T, dtype=float).reshape(3, 3)
         self.gyro_T = np.asarray(self.gyro_T, dtype=float).reshape(3, 3)
         for name in ('bias', 'noise_std', 'nonlinearity', 'bias_tempco',
-                     'scale_tempco', 'bias_drift', 'gyro_noise_std', 'bias_random_walk'):
+                     'scale_tempco', 'bias_drift', 'gyro_noise_std', 'bias_random_walk',
+                     'bias_tempco_quadratic', 'bias_tempco_cubic', 'bias_gradient',
+                     'gyro_bias_tempco'):
             setattr(self, name, _vec3(getattr(self, name)))
         self.thermal_lag_s = float(self.thermal_lag_s)
+        self.gradient_tau_s = float(self.gradient_tau_s)
         self.library_effects = tuple(self.library_effects)
 
     def with_effects(self, **fields):
@@ -134,6 +162,14 @@ class SensorModel:
         s = s * (1.0 + dtheta[:, None] * self.scale_tempco)
         raw = s + self.nonlinearity * s ** 2 / G0
         raw = raw + self.bias + dtheta[:, None] * self.bias_tempco
+        if np.any(self.bias_tempco_quadratic) or np.any(self.bias_tempco_cubic):
+            raw = raw + (dtheta[:, None] ** 2 * self.bias_tempco_quadratic
+                         + dtheta[:, None] ** 3 * self.bias_tempco_cubic)
+        if self.bias_curve is not None:
+            temps, offsets = self.bias_curve
+            theta = dtheta + self.temp_ref
+            raw = raw + np.column_stack([np.interp(theta, temps, offsets[:, i])
+                                         for i in range(3)])
         raw = raw + time[:, None] * self.bias_drift
         for effect, params in self.library_effects:
             raw = raw + effect.apply(params, a, dtheta, time, G0)

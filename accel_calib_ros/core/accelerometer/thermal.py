@@ -85,10 +85,30 @@ class ThermalBand:
 
 @dataclass(eq=False)          # arrays: equal only to itself
 class ThermalTable:
-    """Band drift tables and their continuous lookup."""
+    """
+    Band drift tables and their continuous lookup.
+
+    :param band_width_c: band width, °C.
+    :param bands: ThermalBand list, ordered by temperature.
+    :param extrapolation: beyond the outer band edges the coefficients are 'hold' (held at
+        the edge: the multi-pose tables) or 'linear' (the end segments' slopes continued: a
+        one-pose fit, whose offsets keep moving with temperature past the data).
+    :param reference_c: temperature at which the tables are zero (the reference
+        calibration's own), °C, or None (multi-pose tables are absolute).
+    :param calibrated_c: (low, high) temperatures the fit saw, °C, or None (then the
+        usable bands' edges).
+    :param hysteresis: ``thermal_lag.Hysteresis`` (the heating/cooling term), or None.
+    :param source: 'poses' (many poses per band, Gui Yi) or 'still' (one still pose
+        while the temperature sweeps: offsets only).
+    """
 
     band_width_c: float
     bands: list = field(default_factory=list)
+    extrapolation: str = 'hold'
+    reference_c: float = None
+    calibrated_c: tuple = None
+    hysteresis: object = None
+    source: str = 'poses'
 
     @property
     def usable(self):
@@ -97,9 +117,20 @@ class ThermalTable:
 
     @property
     def range_c(self):
-        """(low, high) temperature range covered by usable bands, °C, or None."""
+        """(low, high) temperature range the tables were fitted over, °C, or None."""
+        if self.calibrated_c is not None:
+            return tuple(self.calibrated_c)
         ok = self.usable
         return (ok[0].low_c, ok[-1].high_c) if ok else None
+
+    def outside(self, temp, margin_c=0.0):
+        """Tell per temperature (N,) whether it lies beyond the fitted range by ``margin_c``."""
+        temp = np.atleast_1d(np.asarray(temp, float))
+        span = self.range_c
+        if span is None:
+            return np.zeros(len(temp), bool)
+        with np.errstate(invalid='ignore'):
+            return (temp < span[0] - margin_c) | (temp > span[1] + margin_c)
 
     def coefficients(self, temp):
         """Blended (quadratic, linear, offset), each (N, 3), at temperatures ``temp`` (N,)."""
@@ -108,7 +139,8 @@ class ThermalTable:
         if not ok:
             z = np.zeros((len(temp), 3))
             return z, z.copy(), z.copy()
-        phi = _basis(temp, np.array([b.temp_c for b in ok]), ok[0].low_c, ok[-1].high_c)
+        phi = _basis(temp, np.array([b.temp_c for b in ok]), ok[0].low_c, ok[-1].high_c,
+                     self.extrapolation)
         return tuple(phi @ np.array([getattr(b, name) for b in ok])
                      for name in ('quadratic', 'linear', 'offset'))
 
@@ -126,8 +158,9 @@ class ThermalTable:
         Gyroscope bias (N, 3) rad/s at temperatures ``temp`` (N,) °C, or None.
 
         Linear between the temperatures of the bands that measured one, held constant
-        beyond them; NaN rows where the temperature is unknown. None when no band
-        carries a gyro bias.
+        beyond them (continued linearly past the outer band edges with ``extrapolation``
+        'linear'); NaN rows where the temperature is unknown. None when no band carries a
+        gyro bias.
         """
         temp = np.atleast_1d(np.asarray(temp, dtype=float))
         bands = sorted((b for b in self.bands if b.gyro_bias is not None),
@@ -136,32 +169,56 @@ class ThermalTable:
             return None
         nodes = np.array([b.temp_c for b in bands])
         values = np.array([b.gyro_bias for b in bands])
-        out = np.column_stack([np.interp(np.nan_to_num(temp, nan=nodes[0]), nodes,
-                                         values[:, k]) for k in range(3)])
+        if self.extrapolation == 'linear':
+            phi = _basis(temp, nodes, bands[0].low_c, bands[-1].high_c, 'linear')
+            out = phi @ values
+        else:
+            out = np.column_stack([np.interp(np.nan_to_num(temp, nan=nodes[0]), nodes,
+                                             values[:, k]) for k in range(3)])
         out[~np.isfinite(temp)] = np.nan
         return out
 
     def to_dict(self):
         """Plain YAML-ready mapping."""
-        return {'band_width_c': float(self.band_width_c),
-                'interpolation': 'linear between band temperatures, extended linearly to the '
-                'outer band edges, held beyond',
-                'bands': [b.to_dict() for b in self.bands]}
+        d = {'band_width_c': float(self.band_width_c),
+             'interpolation': 'linear between band temperatures, extended linearly to the '
+             'outer band edges, ' + ('continued linearly beyond' if self.extrapolation
+                                     == 'linear' else 'held beyond'),
+             'extrapolation': self.extrapolation, 'source': self.source,
+             'bands': [b.to_dict() for b in self.bands]}
+        if self.reference_c is not None:
+            d['reference_c'] = float(self.reference_c)
+        if self.calibrated_c is not None:
+            d['calibrated_c'] = [float(v) for v in self.calibrated_c]
+        if self.hysteresis is not None:
+            d['hysteresis'] = self.hysteresis.to_dict()
+        return d
 
     @classmethod
     def from_dict(cls, d):
         """Inverse of :meth:`to_dict`."""
-        return cls(float(d['band_width_c']), [ThermalBand.from_dict(b) for b in d['bands']])
+        from .thermal_lag import Hysteresis
+        hyst = d.get('hysteresis')
+        span = d.get('calibrated_c')
+        return cls(float(d['band_width_c']), [ThermalBand.from_dict(b) for b in d['bands']],
+                   str(d.get('extrapolation', 'hold')),
+                   None if d.get('reference_c') is None else float(d['reference_c']),
+                   None if span is None else tuple(float(v) for v in span),
+                   None if hyst is None else Hysteresis.from_dict(hyst),
+                   str(d.get('source', 'poses')))
 
 
-def _basis(temps, nodes, low, high):
+def _basis(temps, nodes, low, high, extrapolation='hold'):
     """
     Interpolation weights (N, B) of each temperature on the node grid.
 
     Linear between nodes, extended linearly from the end segments out to the covered
-    range [low, high] (the outer band edges), and held constant beyond it.
+    range [low, high] (the outer band edges), and beyond it held constant
+    (``extrapolation`` 'hold') or continued along the end segments ('linear').
     """
-    t = np.clip(np.nan_to_num(temps, nan=nodes[0]), low, high)
+    t = np.nan_to_num(temps, nan=nodes[0])
+    if extrapolation != 'linear':
+        t = np.clip(t, low, high)
     if len(nodes) == 1:
         return np.ones((len(t), 1))
     eye = np.eye(len(nodes))
