@@ -445,6 +445,11 @@ class TemperatureRate(PerAxisEffect):
     TAU_GRID = 12
     """Time constants tried (log-spaced) before the best one is refined."""
 
+    MAX_TAU_S = 180.0
+    """Longest smoothing tried, s: a gradient across a package or a board settles in tens of
+    seconds (30-60 s on a real chamber cycle); longer ones only imitate a bend of the curve
+    on a warm-up, whose rate follows its temperature."""
+
     def __init__(self, tau=None, time=None, gradient=None):
         self.tau, self._time, self._gradient = tau, time, gradient
 
@@ -468,7 +473,7 @@ class TemperatureRate(PerAxisEffect):
         span = max(c.time_span, 1.0)
         spacing = float(np.median(np.diff(np.sort(c.time)))) if len(c.time) > 1 else 1.0
         low = max(2.0 * spacing, 5.0)
-        return np.geomspace(low, max(min(0.25 * span, 1800.0), 2.0 * low), self.TAU_GRID)
+        return np.geomspace(low, max(min(0.25 * span, self.MAX_TAU_S), 2.0 * low), self.TAU_GRID)
 
     def bind(self, c, tau=None):
         """Return the effect bound to this session's temperature history at ``tau`` s."""

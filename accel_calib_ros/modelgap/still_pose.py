@@ -54,7 +54,7 @@ class StillConditions:
         self.time = self.time_abs - self.time_abs.mean()
         self.gravity = float(gravity)
         self.temp_span, self.time_span = float(np.ptp(self.temp)), float(np.ptp(self.time))
-        self.design = StillDesign(rec, reference_c, band_width_c)
+        self.design = StillDesign(rec, reference_c, band_width_c, smooth=True)
         self.T = np.asarray(reference.T, float)
         self.bias = np.asarray(reference.bias, float)
         self.T_inv = np.linalg.inv(self.T)

@@ -31,6 +31,7 @@ from .calibration_intake import Intake, subscribe
 from .calibration_job import Call, Job, run_job, STOPPING, worker
 from .calibration_params import check_rate, PARAMS
 from .calibration_report import Progress
+from .calibration_thermal import new_binner, run_thermal, thermal_job
 from .parameters import declare_parameters, ParameterProblem
 from .paths import (check_frame_id, history_path, make_directory, sensor_files, sensor_param,
                     unsafe_output)
@@ -69,6 +70,8 @@ class CalibrationNode(Progress, Node):
         self.detector = self._new_detector()
         self._seq = 0
         self._last_result = None    # {'success', 'message', ...} of the last ~/calibrate
+        self._last_thermal = None   # the same of the last ~/calibrate_thermal
+        self.thermal = new_binner(self.params)  # 10 s bins for ~/calibrate_thermal
         self._advice = None
         self._last_coverage = None  # the coverage last published (kept between windows)
         self._model_gap = None
@@ -95,6 +98,8 @@ class CalibrationNode(Progress, Node):
         subscribe(self, self.intake, self.stream_group)
         # Re-entrant: a second call is answered (refused) while the first one runs.
         self.create_service(Trigger, '~/calibrate', self.on_calibrate,
+                            callback_group=ReentrantCallbackGroup())
+        self.create_service(Trigger, '~/calibrate_thermal', self.on_calibrate_thermal,
                             callback_group=ReentrantCallbackGroup())
         self.create_service(Trigger, '~/reset', self.on_reset)
         self.create_timer(PROCESS_PERIOD_S, self.process_pending)
@@ -211,6 +216,7 @@ class CalibrationNode(Progress, Node):
         if not len(rows):
             return
         gyro = rows[:, 4:7]
+        self.thermal.extend(rows[:, 0], rows[:, 1:4], rows[:, 7], gyro)
         windows = self.detector.feed(rows[:, 0], rows[:, 1:4], rows[:, 7],
                                      gyro if np.all(np.isfinite(gyro)) else None)
         for window in windows:
@@ -239,6 +245,7 @@ class CalibrationNode(Progress, Node):
         self.intake.take()
         self.windows.clear()
         self.imu.clear()
+        self.thermal.clear()
         self.detector.finish()
         self._model_gap = None
         self._last_coverage = self._coverage = None
@@ -293,6 +300,55 @@ class CalibrationNode(Progress, Node):
                                      else len(cal.thermal.usable))
         return response
 
+    async def on_calibrate_thermal(self, request, response):
+        """
+        Fit the thermal part of one still pose to the bins collected, on top of the file.
+
+        As ``accel-calib fit --thermal --calibration``: the robot sat still while the
+        temperature swept (a warm-up). In the worker; refused at once while a calibration
+        runs or the node stops; a refusal leaves the file as it was.
+
+        :param request: std_srvs/Trigger request (empty).
+        :param response: std_srvs/Trigger response: success and the summary, or the reason.
+        """
+        if self._stopping or self._solving is not None:
+            response.success = False
+            response.message = f'refused: {STOPPING}' if self._stopping else \
+                'refused: a calibration is already running; call again when it has answered'
+            return response
+        self._solving = time.monotonic()
+        try:
+            self.process_pending()
+            job = thermal_job(self)
+            if isinstance(job, str):
+                success, message, notes = False, f'refused: {job}', []
+            else:
+                done = Future(executor=self.executor)
+                done.add_done_callback(lambda _: None)      # its result wakes the executor
+                call = self._call = Call(done, None)      # a signal answers it (refused)
+                self._worker.submit(run_thermal, job, call.may_save).add_done_callback(
+                    call.finish)
+                if self._stopping:
+                    self.stop_requested()
+                result = (await done).result()
+                success, message, notes = result if len(result) == 3 else \
+                    (False, f'refused: {STOPPING}', [])
+        except Exception as err:        # noqa: B902 - a bug must not take the node down
+            success, message, notes = False, f'internal error: {type(err).__name__}: {err}', []
+        finally:
+            self._solving = self._call = None
+        log = self.get_logger()
+        if success:         # rclpy: one severity per call site
+            log.info(f'~/calibrate_thermal: {message}')
+        else:
+            log.warning(f'~/calibrate_thermal: {message}')
+        for note in notes:
+            log.warning(f'~/calibrate_thermal: {note}')
+        self._last_thermal = {'success': success, 'message': message, 'notes': notes}
+        response.success, response.message = success, message
+        self.publish_status()
+        return response
+
     @staticmethod
     def _refused(reason, imu=None):
         """Return (a refused Outcome, no notes): ``reason``, the other sensors not fitted."""
@@ -307,7 +363,15 @@ class CalibrationNode(Progress, Node):
 
         :raises TimeoutError: no response within ``timeout`` s.
         """
-        call = self.on_calibrate(Trigger.Request(), Trigger.Response())
+        return self._wait(self.on_calibrate, '~/calibrate', timeout)
+
+    def calibrate_thermal_and_wait(self, timeout=300.0):
+        """Run ``~/calibrate_thermal`` as :meth:`calibrate_and_wait` runs ``~/calibrate``."""
+        return self._wait(self.on_calibrate_thermal, '~/calibrate_thermal', timeout)
+
+    @staticmethod
+    def _wait(service, name, timeout):
+        call = service(Trigger.Request(), Trigger.Response())
         deadline = time.monotonic() + timeout
         while True:
             try:
@@ -316,7 +380,7 @@ class CalibrationNode(Progress, Node):
                 return done.value
             if time.monotonic() > deadline:
                 call.close()
-                raise TimeoutError(f'~/calibrate did not answer within {timeout:g} s')
+                raise TimeoutError(f'{name} did not answer within {timeout:g} s')
             time.sleep(0.002)
 
     def _job(self):

@@ -6,6 +6,7 @@ every start-up value and runtime change; the check that spans a value's meaning 
 rate that is an IMU's) lives here too (a sensor id's: ``paths.sensor_param``).
 """
 
+from .calibration_thermal import THERMAL_PARAMS
 from .parameters import Param, ParameterProblem
 from ..core.collector import DEFAULT_MAX_MAG_SAMPLES, DEFAULT_MAX_SAMPLES
 from ..core.windows import DEFAULTS
@@ -89,7 +90,7 @@ PARAMS = [
     Param('field_uT', 0.0,
           'known local magnetic field magnitude, uT (0 = fitted, trusting the '
           'magnetometer sensitivity on average)', low=0.0, high=1000.0),
-]
+] + THERMAL_PARAMS
 
 
 def check_rate(rate_hz):

@@ -14,6 +14,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from std_msgs.msg import String
 
+from .calibration_thermal import thermal_status
 from .paths import hardware_id, status_name
 from ..core.advice import advise, coverage
 from ..core.errors import CalibrationError, InputError
@@ -77,7 +78,8 @@ class Progress:
              'predicted_accuracy': None, 'target_accuracy': self.params['target_accuracy'],
              'enough': False, 'next_pose': None, 'last_window': None,
              'temperature_c': None, 'last_calibration': self._last_result,
-             'model_gap': self._model_gap, 'imu': self.imu.state(self._coverage)}
+             'model_gap': self._model_gap, 'imu': self.imu.state(self._coverage),
+             'thermal': thermal_status(self), 'last_thermal': self._last_thermal}
         if self._advice is not None:
             a = self._advice
             d['predicted_accuracy'] = a['predicted_accuracy']

@@ -99,6 +99,7 @@ class CorrectionNode(Node):
         self._mag_published = 0
         self._dropped = 0           # messages not published: a non-finite field
         self._temp_problem = ''
+        self._lag_restart = None        # stamp of the last restart of the hysteresis term
         self._rate_hz = None        # messages per second, measured at each diagnostics tick
         self._rate_mark = (None, 0)
         self._recent = deque(maxlen=LEVEL_BUFFER)   # (t, ax, ay, az, temp) for ~/level
@@ -181,6 +182,19 @@ class CorrectionNode(Node):
         """
         temp = msg.temperature
         self.temperature = temp if math.isfinite(temp) else float('nan')
+        lag = self.corrector.lag
+        if lag is not None and math.isfinite(temp):
+            stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            if stamp <= 0.0:                # no stamp: the time it came
+                stamp = self.get_clock().now().nanoseconds * 1e-9
+            before = lag.restarts
+            self.corrector.take_temperature(stamp, temp)
+            if lag.restarts > before:
+                self._lag_restart = stamp
+                self.get_logger().warning(
+                    'imu/temperature paused (or stepped back) for more than '
+                    f'{lag.gap_s:g} s: the heating/cooling term restarts from zero',
+                    throttle_duration_sec=WARN_PERIOD_S)
         self._check_range()
 
     def on_imu(self, msg):
@@ -339,11 +353,14 @@ class CorrectionNode(Node):
         """Note why the file is not in use (/diagnostics); log it when it is news."""
         if problem != self._file_problem:
             log = self.get_logger()
-            (log.error if level == DiagnosticStatus.ERROR else log.warning)(
-                f'{problem}: {consequence}')
+            if level == DiagnosticStatus.ERROR:     # rclpy: one severity per call site
+                log.error(f'{problem}: {consequence}')
+            else:
+                log.warning(f'{problem}: {consequence}')
         self._file_problem, self._file_level = problem, level
 
     def _use(self, corrector, verb):
+        corrector.adopt(self.corrector)     # the temperature's lag goes on over a reload
         self.corrector = corrector
         self._file_problem = ''
         cal = corrector.cal
@@ -399,8 +416,11 @@ class CorrectionNode(Node):
         if low - margin <= temp <= high + margin:
             self._temp_problem = ''
             return
+        beyond = ('the offset tables are continued linearly there (an extrapolation)'
+                  if cal.thermal is not None and cal.thermal.extrapolation == 'linear'
+                  else 'expect larger errors')
         self._temp_problem = (f'temperature {temp:.1f} degC is outside the calibrated range '
-                              f'{low:.1f} .. {high:.1f} degC: expect larger errors')
+                              f'{low:.1f} .. {high:.1f} degC: {beyond}')
         self.get_logger().warning(self._temp_problem, throttle_duration_sec=WARN_PERIOD_S)
 
     # -- level trim ------------------------------------------------------------------------
@@ -492,6 +512,12 @@ class CorrectionNode(Node):
         frame = self.level_frame.words()
         if frame and not self.level_frame.publishes:
             problems.append(frame)
+        lag = self.corrector.lag
+        if lag is not None and self._lag_restart is not None and lag.time is not None \
+                and lag.time - self._lag_restart < 3.0 * lag.tau_s:
+            problems.append(f'imu/temperature paused for more than {lag.gap_s:g} s: the '
+                            'heating/cooling term restarted from zero (it rebuilds over '
+                            f'about {3.0 * lag.tau_s:.0f} s)')
         if problems:
             status.level = max(status.level, level, DiagnosticStatus.WARN)
             status.message += '; ' + '; '.join(problems)
@@ -513,6 +539,10 @@ class CorrectionNode(Node):
                            if cal.magnetometer is None
                            else cal.magnetometer.predicted_accuracy,
                            'level_trim': cal.level_roll_pitch_rad is not None,
+                           'hysteresis': 'none' if lag is None else
+                           f'{cal.hysteresis.effect}, tau {lag.tau_s:.0f} s, gradient '
+                           f'{lag.gradient:+.3f} degC',
+                           'hysteresis_restarts': 0 if lag is None else lag.restarts,
                            'level_frame': frame or 'none (no trim)'})
         values.update({'magnetometer': self.magnetometer_state(),
                        'mag_samples': self._mag_samples,

@@ -101,13 +101,27 @@ def fit_thermal(samples, reference, settings=None):
     """
     from ..core.errors import CalibrationError
     settings = settings or ThermalSettings()
-    out = ThermalOutcome()
     try:
         rec = still_bins(samples, settings.bin_s, settings.min_span_c)
     except CalibrationError as err:
-        out.refusal = str(err)
-        return out
-    out.recording = rec
+        return ThermalOutcome(refusal=str(err))
+    return fit_thermal_recording(rec, reference, settings)
+
+
+def fit_thermal_recording(rec, reference, settings=None):
+    """
+    Fit the thermal part of a calibration to a checked still recording (bins).
+
+    :param rec: StillRecording (``core.accelerometer.thermal_still``: from a recording, or
+        the calibration node's live bins); its ``samples`` give the bins' noise from their
+        own spectrum when they are there.
+    :param reference: core.calibration.Calibration to extend (not changed).
+    :param settings: ThermalSettings.
+    :returns: ThermalOutcome.
+    """
+    from ..core.errors import CalibrationError
+    settings = settings or ThermalSettings()
+    out = ThermalOutcome(recording=rec)
     out.reference_c, out.reference_note = reference_temperature(reference, rec)
     hysteresis = None
     if settings.hysteresis != 'off':
@@ -116,7 +130,7 @@ def fit_thermal(samples, reference, settings=None):
             out.diagnosis = diagnose_still(rec, reference, out.reference_c,
                                            settings.band_width_c, settings.gravity,
                                            min_effect_mg=settings.min_effect_mg,
-                                           samples=samples, power=False)
+                                           samples=rec.samples, power=False)
         except (CalibrationError, ValueError, np.linalg.LinAlgError) as err:
             out.warnings.append(f'hysteresis not checked: {err}')
         else:

@@ -424,3 +424,53 @@ def test_memory_stays_bounded(node_in_process):
     (window,) = det.finish()
     assert window['count'] > 0.99 * 360 * chunk and not seen
     assert node.intake.pending() == 0
+
+
+def test_calibrate_thermal_learns_the_warm_up_on_top_of_the_file(node_in_process, tmp_path):
+    from accel_calib_ros.sim.chamber import ChamberProgramme, simulate_still, thermal_unit
+    from sensor_msgs.msg import Temperature
+    rng = np.random.default_rng(12)
+    warm_up = ChamberProgramme(set_points=(45.0,), rates_c_min=100.0, hold_s=1500.0,
+                               start_c=20.0, board_tau_s=400.0, lead_s=60.0)
+    sensor = thermal_unit(rng, offsets_mg=(10.0, 8.0, 30.0), span_c=(20.0, 45.0),
+                          temp_ref=21.0)
+    s = simulate_still(sensor, [0.0, 0.0, 1.0], rng, warm_up.duration_s, rate_hz=5.0,
+                       temperature=warm_up).samples
+    path = tmp_path / 'calibration.yaml'
+    node = node_in_process()
+    response = node.calibrate_thermal_and_wait()        # nothing yet, and no file
+    assert not response.success and 'no thermal data collected yet' in response.message
+    for t, a, temp in zip(1000.0 + s.t, s.accel, s.temp):
+        node.intake.on_temperature(Temperature(temperature=float(temp)))
+        node.on_imu(imu_message(t, a))
+    node.process_pending()
+    assert node.progress()['thermal']['enough']
+    response = node.calibrate_thermal_and_wait()
+    assert not response.success and 'no calibration in force' in response.message
+    assert not path.exists()
+    save_calibration(Calibration(T=sensor.T, bias=sensor.bias, temperature_range_c=(20.5, 21.5),
+                                 sensor_id=node.sensor), path)
+    before = path.read_bytes()
+    node.params['thermal_min_span_c'] = 50.0            # more than the warm-up gives
+    response = node.calibrate_thermal_and_wait()
+    assert not response.success and 'spans only' in response.message
+    assert path.read_bytes() == before
+    node.params['thermal_min_span_c'] = 5.0
+    response = node.calibrate_thermal_and_wait()
+    assert response.success, response.message
+    cal = load_calibration(path)
+    assert cal.thermal is not None and cal.thermal.source == 'still'
+    np.testing.assert_allclose(cal.T, sensor.T)
+    temps = np.array([25.0, 35.0, 44.0])
+    d = temps - sensor.temp_ref
+    truth = (np.outer(d, sensor.bias_tempco) + np.outer(d ** 2, sensor.bias_tempco_quadratic)
+             + np.outer(d ** 3, sensor.bias_tempco_cubic))
+    fitted = cal.thermal.drift(np.zeros((3, 3)), temps)
+    # Referenced to the file's own temperature (21 degC): the offsets' change from there.
+    ref = cal.thermal.reference_c - sensor.temp_ref
+    truth -= (sensor.bias_tempco * ref + sensor.bias_tempco_quadratic * ref ** 2
+              + sensor.bias_tempco_cubic * ref ** 3)
+    assert np.max(np.abs(fitted - truth)) < 1e-3 * 9.80665
+    assert node.progress()['last_thermal']['success']
+    node.on_reset(Trigger.Request(), Trigger.Response())
+    assert node.progress()['thermal']['bins'] == 0

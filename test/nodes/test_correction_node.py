@@ -445,3 +445,58 @@ def test_correction_node_is_lean():
                           timeout=60)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == ''
+
+
+def _hysteresis_calibration():
+    """Return a calibration with a one-pose thermal table and a heating/cooling term."""
+    from accel_calib_ros.core.accelerometer.thermal_lag import Hysteresis
+    cal = make_calibration(5)
+    zeros = np.zeros(3)
+    bands = [ThermalBand(20.0, 25.0, 22.0, zeros, zeros, np.array([0.01, -0.02, 0.05]), 30),
+             ThermalBand(25.0, 30.0, 28.0, zeros, zeros, np.array([0.03, -0.01, 0.09]), 30)]
+    cal.thermal = ThermalTable(5.0, bands, 'linear', 25.0, (21.0, 29.0),
+                               Hysteresis(20.0, [0.0, 0.004, -0.03], 'temperature_rate'),
+                               'still')
+    cal.temperature_range_c = (21.0, 29.0)
+    return cal
+
+
+def test_the_hysteresis_follows_the_temperature_stream_over_a_reload(tmp_path, rig_factory):
+    path = tmp_path / 'calibration.yaml'
+    save_calibration(_hysteresis_calibration(), path)
+    cal = load_calibration(path)
+    rig = rig_factory(path)
+    rng = np.random.default_rng(9)
+    stamps = 1000.0 + np.arange(40) * 1.0
+    temps = 22.0 + 0.1 * np.arange(40)                 # heating at 6 degC/min
+    for k, (t, temp) in enumerate(zip(stamps, temps)):
+        msg = Temperature(temperature=float(temp), variance=0.0)
+        msg.header.stamp.sec, msg.header.stamp.nanosec = int(t), 0
+        rig.temp_pub.publish(msg)
+        rig.spin_until(lambda temp=temp: rig.node.temperature == temp)
+        if k == 20:                                    # the same file again: a reload
+            before = rig.node.corrector
+            save_calibration(cal, path)
+            rig.spin_until(lambda: rig.node.corrector is not before)
+    sent = [raw_message(rng, i) for i in range(20)]
+    got = send(rig, sent)
+    stream = cal.lag_stream()
+    gradient = stream.gradient(stamps, temps)[-1]
+    assert gradient > 1.0                               # the term is there, and carried on
+    expected = cal.correct(np.array([accel(m) for m in sent]), np.full(20, temps[-1])) \
+        - np.linalg.solve(cal.T, gradient * cal.hysteresis.offset_per_c)
+    assert np.max(np.abs(np.array([accel(m) for m in got]) - expected)) < 1e-9
+    # A silence of the temperature longer than the lag's gap restarts it, and says so.
+    msg = Temperature(temperature=26.0, variance=0.0)
+    msg.header.stamp.sec = int(stamps[-1] + 100.0)
+    rig.temp_pub.publish(msg)
+    rig.spin_until(lambda: rig.node.temperature == 26.0)
+    assert rig.node.corrector.lag.gradient == 0.0
+    status = rig.last_diagnostics()[0]
+    values = {kv.key: kv.value for kv in status.values}
+    assert values['hysteresis_restarts'] == '1'
+    assert 'restarted from zero' in status.message
+    rig.set_temperature(35.0)
+    status = rig.last_diagnostics()[0]
+    assert 'outside the calibrated range' in status.message and 'extrapolation' in \
+        status.message

@@ -138,9 +138,14 @@ class StillDesign:
 
     :param rec: thermal_still.StillRecording. :param reference_c: θ_ref, °C.
     :param band_width_c: band width, °C. :param hysteresis: Hysteresis (tau) or None.
+    :param smooth: the curve through the nodes is a cubic spline (continued
+        linearly beyond the end nodes) instead of the tables' straight segments: what the
+        model-gap workflow fits, so that the bends between nodes of a smooth real curve are
+        not taken for an effect; the tables a fit carries interpolate linearly.
     """
 
-    def __init__(self, rec, reference_c, band_width_c, hysteresis=None):
+    def __init__(self, rec, reference_c, band_width_c, hysteresis=None, smooth=False):
+        self.smooth = smooth
         bins = rec.bins
         self.rec, self.reference_c = rec, float(reference_c)
         self.weight = bins.count / np.mean(bins.count)
@@ -155,9 +160,8 @@ class StillDesign:
 
     def referenced(self, temp):
         """Return the node columns phi(θ) - phi(θ_ref), (N, B)."""
-        phi = _basis(np.atleast_1d(temp), self.nodes, self.low, self.high, 'linear')
-        ref = _basis(np.array([self.reference_c]), self.nodes, self.low, self.high, 'linear')
-        return phi - ref
+        basis = _spline_basis if self.smooth and len(self.nodes) > 2 else _linear_basis
+        return basis(np.atleast_1d(temp), self) - basis(np.array([self.reference_c]), self)
 
     def matrix(self, with_hysteresis=True):
         """Return the design matrix: pose, node (and gradient) columns, (N, P + B [+ 1])."""
@@ -176,6 +180,31 @@ class StillDesign:
         coef = np.zeros(X.shape[1])
         coef[keep] = np.linalg.lstsq(X[:, keep] * w[:, None], y * w, rcond=None)[0]
         return coef
+
+
+def _linear_basis(temp, design):
+    """Return the tables' interpolation weights of temperatures (N,) on the nodes, (N, B)."""
+    return _basis(temp, design.nodes, design.low, design.high, 'linear')
+
+
+def _spline_basis(temp, design):
+    """
+    Return a cubic spline's weights of temperatures (N,) on the nodes, (N, B).
+
+    Column j is the spline (not-a-knot ends: a cubic between the last nodes is followed
+    exactly) through the j-th unit vector at the nodes; beyond the end nodes it continues
+    along its end tangent.
+    """
+    from scipy.interpolate import CubicSpline
+    nodes = design.nodes
+    t = np.asarray(temp, float)
+    spline = CubicSpline(nodes, np.eye(len(nodes)), bc_type='not-a-knot')
+    inside = np.clip(t, nodes[0], nodes[-1])
+    out = spline(inside)
+    slope = spline(np.array([nodes[0], nodes[-1]]), 1)
+    out += np.where(t < nodes[0], t - nodes[0], 0.0)[:, None] * slope[0][None, :]
+    out += np.where(t > nodes[-1], t - nodes[-1], 0.0)[:, None] * slope[1][None, :]
+    return out
 
 
 def gradient_of(rec, tau_s):

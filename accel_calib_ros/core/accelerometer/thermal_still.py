@@ -279,7 +279,7 @@ class StillBinner:
     """
     Bins of a live stream, collected as they close (the calibration node's thermal intake).
 
-    Rows are kept until a bin closes, then cut by ``bin_samples`` (the same bins as a
+    Rows are kept until their bin closes, then cut by ``bin_samples`` (the same bins as a
     recording of them gives); at most ``max_bins`` are kept (the oldest go first).
 
     :param bin_s: bin length, s. :param gap_s: a longer silence starts a new stretch.
@@ -289,28 +289,48 @@ class StillBinner:
         self.bin_s = float(bin_s)
         self.gap_s = 5.0 * self.bin_s if gap_s is None else float(gap_s)
         self.max_bins = int(max_bins)
-        self.rows, self.pieces, self.skipped = [], [], 0
+        self.pending = np.zeros((0, 8))         # t, ax, ay, az, temp, gx, gy, gz
+        self.pieces, self.skipped = [], 0
         self.origin = self.previous = None
         self.segment = 0
         self.dt = []
 
     def add(self, t, accel, temp, gyro=None):
         """Take one row (s, (3,) m/s², °C, (3,) rad/s or None); non-finite rows are counted."""
-        if not (np.isfinite(t) and np.isfinite(temp) and np.all(np.isfinite(accel))):
-            self.skipped += 1
+        self.extend([t], [accel], [temp], None if gyro is None else [gyro])
+
+    def extend(self, t, accel, temp, gyro=None):
+        """
+        Take rows (n,) s, (n, 3) m/s², (n,) °C, (n, 3) rad/s or None, in time order.
+
+        Rows without a finite time, reading or temperature are counted and left out; a gyro
+        row that is not finite leaves the gyro out of its bin.
+        """
+        t = np.asarray(t, float).reshape(-1)
+        accel = np.asarray(accel, float).reshape(-1, 3)
+        temp = np.asarray(temp, float).reshape(-1)
+        gyro = np.full((len(t), 3), np.nan) if gyro is None \
+            else np.asarray(gyro, float).reshape(-1, 3)
+        ok = np.isfinite(t) & np.isfinite(temp) & np.all(np.isfinite(accel), axis=1)
+        self.skipped += int((~ok).sum())
+        rows = np.column_stack([t, accel, temp, gyro])[ok]
+        if not len(rows):
             return
-        row = (float(t), *map(float, accel), float(temp),
-               *(map(float, gyro) if gyro is not None and np.all(np.isfinite(gyro))
-                 else (np.nan,) * 3))
-        if self.rows and not 0.0 <= row[0] - self.rows[-1][0] <= self.gap_s:
-            self._close(everything=True)
-        if not self.rows and self.previous is not None \
-                and not 0.0 <= row[0] - self.previous[0] <= self.gap_s:
-            self.origin, self.previous = None, None
-            self.segment += 1
-        self.rows.append(row)
-        if row[0] - self.rows[0][0] >= 2.0 * self.bin_s:
-            self._close()
+        last = self.pending[-1, 0] if len(self.pending) else \
+            (self.previous[0] if self.previous is not None else rows[0, 0])
+        dt = np.diff(np.r_[last, rows[:, 0]])
+        breaks = np.flatnonzero(~((dt >= 0) & (dt <= self.gap_s)))
+        starts = np.unique(np.r_[0, breaks])
+        for a, b in zip(starts, np.r_[starts[1:], len(rows)]):
+            if a in breaks:                         # a silence (or a step back) before it
+                if len(self.pending):
+                    self._close(everything=True)
+                self.origin, self.previous = None, None
+                self.segment += 1
+            if b > a:
+                self.pending = np.vstack([self.pending, rows[a:b]])
+            if len(self.pending) and self.pending[-1, 0] - self.pending[0, 0] >= 2 * self.bin_s:
+                self._close()
 
     def _close(self, everything=False, keep=False):
         """
@@ -318,42 +338,50 @@ class StillBinner:
 
         ``keep``: return the piece without taking the rows (the open bin as it stands).
         """
-        rows = np.array(self.rows)
+        rows = self.pending
         t = rows[:, 0]
-        if self.origin is None:
-            self.origin = t[0]
-        k = np.floor((t - self.origin) / self.bin_s)
+        origin = t[0] if self.origin is None else self.origin
+        k = np.floor((t - origin) / self.bin_s)
         done = len(t) if everything else int(np.searchsorted(k, k[-1], side='left'))
         if done == 0:
-            return
+            return None
         t, accel, temp = t[:done], rows[:done, 1:4], rows[:done, 4]
         gyro = rows[:done, 5:8]
         gyro = None if np.isnan(gyro).any() else gyro
-        piece = bin_samples(t, accel, temp, gyro, self.bin_s, self.gap_s, self.origin,
+        piece = bin_samples(t, accel, temp, gyro, self.bin_s, self.gap_s, origin,
                             self.previous)
         piece.segment = piece.segment + self.segment
         if keep:
             return piece
+        self.origin = origin
         self.pieces.append(piece)
         self.previous = (t[-1], temp[-1])
         self.dt.append(np.median(np.diff(t)) if len(t) > 1 else np.nan)
-        self.rows = self.rows[done:]
+        self.pending = self.pending[done:]
         while sum(len(p.bins) for p in self.pieces) > self.max_bins and len(self.pieces) > 1:
             self.pieces.pop(0)
+        return piece
 
     def __len__(self):
-        return sum(len(p.bins) for p in self.pieces)
+        return sum(len(p.bins) for p in self.pieces) + int(len(self.pending) > 0)
+
+    def span_c(self):
+        """Return the temperature span of the bins so far, °C (0 with none)."""
+        raw = self.raw()
+        return 0.0 if raw is None else float(np.ptp(raw.bins.temp))
 
     def raw(self):
         """Return the bins so far, the open one as it stands (RawBins), or None."""
         pieces = list(self.pieces)
-        if self.rows:
+        if len(self.pending):
             pieces.append(self._close(everything=True, keep=True))
         if not pieces:
             return None
         out = _join(pieces)
         dt = np.array([v for v in self.dt if np.isfinite(v) and v > 0])
-        out.rate_hz = 1.0 / float(np.median(dt)) if len(dt) else 1.0
+        if not len(dt) and len(self.pending) > 1:
+            dt = np.diff(self.pending[:, 0])
+        out.rate_hz = 1.0 / float(np.median(dt)) if len(dt) and np.median(dt) > 0 else 1.0
         out.skipped_rows = self.skipped
         return out
 
