@@ -34,7 +34,7 @@ from .thermal_lag import GAP_S, Hysteresis, lagged_temperature
 MIN_BINS_PER_BAND = 3
 """A band needs at least this many bins for a node."""
 
-HYSTERESIS_T = 3.0
+HYSTERESIS_T = 5.0
 """A hysteresis coefficient is kept on an axis only beyond this many standard errors."""
 
 LEG_RATE_C_MIN = 0.3
