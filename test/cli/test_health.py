@@ -100,7 +100,7 @@ def test_a_temperature_outside_the_range_is_a_warning_with_its_size(capsys, file
     summary = json.loads(out)
     assert code == 0 and summary['status'] == 'warn' and not summary['recalibrate']
     assert summary['cause'].startswith('temperature outside the calibrated range')
-    assert summary['final']['temperature_outside_c'] == pytest.approx(15.0, abs=0.01)
+    assert summary['final']['temperature_outside_c'] == pytest.approx(15.0, abs=0.1)
     assert max(summary['final']['temperature_explains_mg']) > 10.0
     assert 'thermal tables' in summary['final']['tempco_source']
     code, out, _ = run(capsys, 'health', files['cal'], files['hot'])

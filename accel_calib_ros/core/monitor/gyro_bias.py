@@ -19,6 +19,8 @@ of the next motion is never in it), once it has lasted ``min_still_s``:
 - the component **along gravity** is the one a turn in place hides in; it is followed
   only as far as something says the sensor does not turn:
 
+  * a rate about gravity that changes across the period (a turn setting off or
+    stopping; ``TEST_Z`` standard errors and ``CHANGE_FLOOR``): held, and said;
   * a magnetometer precise enough (its heading across the whole period, any rate the
     AK8963 offers) that sees no turn: measured, up to ``limit``; one that sees a turn:
     held, and said;
@@ -54,6 +56,9 @@ TILT_FLOOR = 0.005 * DEG
 """Tilt rates below this are ignored, rad/s (slow thermal drift of the corrected mean)."""
 HEADING_FLOOR = 0.01 * DEG
 """Turn rates the magnetometer sees below this are ignored, rad/s."""
+CHANGE_FLOOR = 0.1 * DEG
+"""Changes of the rate about gravity within a period below this are ignored, rad/s
+(the gyro's own flicker moves it by hundredths of °/s)."""
 NOISE_FLOOR = 0.002 * DEG
 """Error of a period's mean no averaging removes, rad/s (Earth's rate is 0.004 °/s)."""
 JUDGE_EVERY_S = 0.3
@@ -69,6 +74,14 @@ TEMPCO = 0.24 * DEG
 
 
 _EYE = np.eye(3)
+
+
+def _rate_change(line, u, duration):
+    """Return how much the rate about ``u`` changed across a period: (change, its std)."""
+    slope, noise, sxx = line.slope()
+    if sxx <= 0.0:
+        return 0.0, math.inf
+    return float(u @ slope) * duration, math.sqrt(noise / sxx) * duration
 
 
 def _basis(u):
@@ -186,7 +199,12 @@ class GyroBiasTracker:
         self._held = 0.0
         rate, sd = run.heading_rate()
         bound = self._vertical_bound(outside_c, stationary)
-        if math.isfinite(sd) and abs(rate) > max(TEST_Z * sd, HEADING_FLOOR):
+        change, change_sd = _rate_change(run.gyro, u, run.duration)
+        if abs(change) > max(TEST_Z * change_sd, CHANGE_FLOOR):
+            self._turned = True
+            self.vertical = (f'held: the rate about gravity changed by {change / DEG:+.3f} '
+                             'deg/s during the period (a turn setting off or stopping)')
+        elif math.isfinite(sd) and abs(rate) > max(TEST_Z * sd, HEADING_FLOOR):
             self._turned = True
             self.vertical = (f'held: the magnetometer sees a turn about gravity of '
                              f'{rate / DEG:.3f} deg/s')

@@ -21,7 +21,9 @@ judges a moving window):
   zero-rate change of any size within the chip's range (±30 °/s over temperature) is
   found: the first second of rest teaches it;
 - the block mean has not jumped from the last block's by more than ``JUMP_SIGMA`` of
-  their noise plus ``JUMP_FLOOR`` (a tilt or a bump between blocks).
+  their noise plus ``JUMP_FLOOR`` (a tilt or a bump between blocks), nor the mean rate
+  by more than ``JUMP_SIGMA`` of its noise plus ``GYRO_JUMP_FLOOR`` (a turn setting off:
+  the period before it must not be averaged with it).
 
 A constant turn about gravity passes all of these: the accelerometer cannot see it.
 That is the gyro-bias tracker's problem (:mod:`.gyro_bias`). A smooth sustained
@@ -46,6 +48,8 @@ JUMP_SIGMA = 6.0
 """A block mean further than this many standard errors from the last one has moved."""
 JUMP_FLOOR = 0.01
 """... plus this much, m/s² (1 mg: vibration makes block means scatter beyond white noise)."""
+GYRO_JUMP_FLOOR = math.radians(0.05)
+"""... and the mean rate by this much, rad/s."""
 CAP_FACTOR = 3.0
 """The floor never exceeds this many times the calibration's per-sample noise."""
 MIN_ACCEL_FLOOR = 1e-4
@@ -155,21 +159,27 @@ class StillDetector:
             return 'learning the noise floor'
         if a_std > self.factor * self.accel_floor.value:
             return 'accelerating or vibrating'
-        jumped = False
+        jumped = turned = False
         if last is not None and 0.0 < block.t - last.t < 4.0 * max(block.duration, 1e-3):
             step = np.abs(block.a_mean - last.a_mean)
             noise = np.sqrt(block.a_var / block.n + last.a_var / last.n)
             jumped = bool(np.any(step > JUMP_SIGMA * noise + JUMP_FLOOR))
+            if block.g_mean is not None and last.g_mean is not None:
+                step = np.abs(block.g_mean - last.g_mean)
+                noise = np.sqrt(block.g_var / block.n + last.g_var / last.n)
+                turned = bool(np.any(step > JUMP_SIGMA * noise + GYRO_JUMP_FLOOR))
         if block.g_mean is not None:
             if g_std > self.factor * self.gyro_floor.value:
                 return 'rotation rate changing'
-            if not jumped:
+            if not (jumped or turned):
                 self._learn_zero(block.g_mean)
             rate = block.g_mean - self.zero
             if float(rate @ rate) > self.max_rotation ** 2:
                 return 'rotating'
         if jumped:
             return 'moved between blocks'
+        if turned:
+            return 'the rotation rate changed between blocks'
         return ''
 
     def _learn_zero(self, rate):
