@@ -102,7 +102,7 @@ def norm_errors(T, covariance, directions, gravity=G0):
 
 def norm_jacobians(T, directions, gravity=G0):
     """
-    Derivative of ``|corrected| - gravity`` by the parameters at each direction, (M, 9).
+    Return the derivative of ``|corrected| - gravity`` by the parameters, (M, 9).
 
     First order, at the true acceleration ``gravity * direction`` (sensor frame): the rows
     whose covariance :func:`norm_errors` gives (the field monitor's health check uses them

@@ -140,7 +140,7 @@ class CorrectionNode(Node):
         if 'level_frame_id' in changes:
             check_frame_id(changes['level_frame_id'])
             self._frames = ('', '')
-        if set(changes) & {p.name for p in MONITOR_PARAMS} | {'temperature_margin_c'}:
+        if set(changes) & ({p.name for p in MONITOR_PARAMS} | {'temperature_margin_c'}):
             self.monitor.apply(changes)
 
     def _tick(self):
@@ -208,9 +208,10 @@ class CorrectionNode(Node):
         mon = self.monitor
         if mon.active:      # the field monitor: one list append, a block every 0.1 s
             buf = mon.buf
-            buf.append((x, y, z, gx, gy, gz, temp))
+            st = msg.header.stamp
+            buf.append((st.sec + st.nanosec * 1e-9, x, y, z, gx, gy, gz, temp))
             if len(buf) >= mon.block_n:
-                mon.flush(msg.header.stamp)
+                mon.flush()
             bx, by, bz = mon.bias
             w.x, w.y, w.z = gx - bx, gy - by, gz - bz
         h = msg.header

@@ -58,7 +58,7 @@ MPU9250_GYRO_LSB = math.radians(1.0 / 131.0)
 
 @dataclass
 class Segment:
-    """One stretch of a day: 'still', 'turn', 'move' or 'platform', with its pose (body to world)."""
+    """One stretch of a day: still, turn, move or platform, with its pose (body to world)."""
 
     kind: str
     seconds: float
@@ -101,7 +101,7 @@ def platform(pose, seconds, push):
 
 
 def lift(pose, accel, plateau_s=3.0, cruise_s=8.0, ramp_s=0.6, up=True):
-    """An elevator ride: ``accel`` m/s² for ``plateau_s``, cruise, the same to stop."""
+    """Ride an elevator: ``accel`` m/s² for ``plateau_s``, cruise, the same to stop."""
     one = 2.0 * ramp_s + plateau_s
     sign = 1.0 if up else -1.0
 
@@ -112,7 +112,7 @@ def lift(pose, accel, plateau_s=3.0, cruise_s=8.0, ramp_s=0.6, up=True):
 
 
 def van(pose, accel, plateau_s=4.0, cruise_s=10.0, ramp_s=0.8, heading=0.0):
-    """A vehicle setting off at ``accel`` m/s², cruising, braking at ``accel`` to a stop."""
+    """Ride a vehicle: set off at ``accel`` m/s², cruise, brake at ``accel`` to a stop."""
     one = 2.0 * ramp_s + plateau_s
     direction = np.array([math.cos(heading), math.sin(heading), 0.0])
 
@@ -123,7 +123,7 @@ def van(pose, accel, plateau_s=4.0, cruise_s=10.0, ramp_s=0.8, heading=0.0):
 
 
 def heave(pose, amplitude, freq_hz, seconds, phase=0.0):
-    """A ship's heave: vertical acceleration ``amplitude`` m/s² at ``freq_hz``."""
+    """Ride a ship's heave: vertical acceleration ``amplitude`` m/s² at ``freq_hz``."""
     def push(tau):
         a = amplitude * np.sin(2.0 * np.pi * freq_hz * np.asarray(tau, float) + phase)
         return np.outer(a, [0.0, 0.0, 1.0])

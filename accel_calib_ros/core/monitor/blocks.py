@@ -27,6 +27,10 @@ MIN_RATE_HZ = 20.0
 """Slowest stream the still test works on, Hz (blocks of at most 0.4 s)."""
 RATE_INTERVALS = 16
 """Sample intervals seen before the rate (and so the block length) is fixed."""
+STALL_BLOCKS = 20
+"""A block holding this many blocks' worth of samples means the clock stands still."""
+MAX_HELD = 4096
+"""Most samples held while the rate is unknown, and magnetometer samples held."""
 GAP_S = 0.25
 """A forward step of the sample clock longer than this (and 5 intervals) is a gap, s."""
 
@@ -159,7 +163,7 @@ class BlockCutter:
         if mag is not None and len(mag):
             mt, mv = np.asarray(mag_t, float), np.asarray(mag, float)
             self._mag = (mt, mv) if self._mag is None else \
-                (np.r_[self._mag[0], mt], np.vstack([self._mag[1], mv]))
+                (np.r_[self._mag[0], mt][-MAX_HELD:], np.vstack([self._mag[1], mv])[-MAX_HELD:])
         if not len(t):
             return []
         if self._carry is not None:
@@ -178,7 +182,9 @@ class BlockCutter:
         if self.step_s is None:
             good = dt[dt > 0]
             if len(good) < RATE_INTERVALS:
-                self._carry = (t, a, g, temp)
+                keep = slice(-MAX_HELD, None)           # a clock that never moves: bounded
+                self._carry = (t[keep], a[keep], None if g is None else g[keep],
+                               None if temp is None else temp[keep])
                 return out
             self._lock(float(1.0 / np.median(good)))
         # Clock steps: backwards, or forwards by more than a gap (the last block's end too).
@@ -238,6 +244,13 @@ class BlockCutter:
                               None if temp is None else temp[a0:b0])
         if not final:
             a0 = starts[-1]
+            if len(t) - a0 > STALL_BLOCKS * self.step_s * self.rate_hz + RATE_INTERVALS:
+                # The clock stands still (stamps that do not advance): not one block forever.
+                out += self._emit(t[a0:], a[a0:], None if g is None else g[a0:],
+                                  None if temp is None else temp[a0:])
+                self.steps += 1
+                self._last_t = None
+                return out + [('step', 'the sample clock does not advance')]
             self._carry = (t[a0:], a[a0:], None if g is None else g[a0:],
                            None if temp is None else temp[a0:])
             if a0 > 0:                  # the carry is fed again: steps counted from here

@@ -232,7 +232,7 @@ class FieldMonitor:
                 self.restart(value)
 
     def restart(self, words='the sample clock stepped'):
-        """A step of the sample clock: end the period, restart the time-ordered state."""
+        """End the period and restart the time-ordered state (a step of the sample clock)."""
         self._end()
         self._confirm(self.neighbours.expire(None))
         self.detector.restart()

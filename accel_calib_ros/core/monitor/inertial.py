@@ -135,7 +135,7 @@ class Neighbours:
                 rest.carry(angle, doubt)
 
     def lose_direction(self):
-        """A clock step or a gap: the directions cannot be carried across it."""
+        """Forget every direction (a clock step: they cannot be carried across it)."""
         for rest in ([self.ref] if self.ref is not None else []) + self.pending:
             rest.sigma = math.inf
 
@@ -153,7 +153,7 @@ class Neighbours:
 
     def arrive(self, a, temp):
         """
-        A new rest begins with mean ``a``: answer the periods waiting.
+        Answer the periods waiting: a new rest begins with mean ``a``.
 
         :return: list of ('confirm', obs) and ('drop', obs, words), in order.
         """
@@ -174,7 +174,7 @@ class Neighbours:
         return out
 
     def close(self, run, obs):
-        """A still period ended with observation ``obs`` (the health check's): it waits."""
+        """Hold a still period that ended, with its observation ``obs``, for the next rest."""
         self.pending.append(_Rest(run.accel_mean, run.temp, run.t_stop, obs, run))
 
     def expire(self, t=None):

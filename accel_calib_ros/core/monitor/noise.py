@@ -12,8 +12,9 @@ compared with what the within-block variance says for white noise. The ratio
 variance does not fall with averaging); pooled over every period seen, ``a`` and ``β``
 are fitted by weighted least squares (``var R(m) = 2 R² / pairs``), and a period of
 ``K`` blocks gets ``R = a + (β + one standard error) K``, at least ``MIN_RATIO``. Until
-``MIN_PAIRS`` block pairs have been seen, ``PRIOR_RATIO`` (3.5², the worst seen on the
-real recordings) stands.
+``MIN_PAIRS`` block pairs have been seen, a prior stands: ``PRIOR_RATIO`` (3.5², the
+worst seen on the real recordings) for means of ``PRIOR_BLOCKS`` blocks or more,
+less for shorter ones (linearly from 1: flicker matters more the longer the mean).
 """
 
 import math
@@ -26,6 +27,8 @@ MIN_PAIRS = 50
 """Adjacent block pairs needed before the measured ratio replaces the prior."""
 PRIOR_RATIO = 3.5 ** 2
 """Variance ratio assumed before that (real recordings: up to 3.5x in std)."""
+PRIOR_BLOCKS = 300
+"""... for means of this many blocks or more (30 s of 0.1 s blocks)."""
 MIN_RATIO = 0.25
 """Smallest variance ratio believed (vibration that averages out within a block)."""
 MAX_RATIO = 1e4
@@ -67,7 +70,7 @@ class MeanNoise:
     def ratio(self, blocks):
         """Return the variance of a mean over ``blocks`` blocks over the white-noise value."""
         if self.pairs[0] < MIN_PAIRS:
-            return PRIOR_RATIO
+            return 1.0 + (PRIOR_RATIO - 1.0) * min(float(blocks) / PRIOR_BLOCKS, 1.0)
         a, beta, beta_sd = self.fit()
         value = a + max(beta + beta_sd, 0.0) * float(blocks)
         return min(max(value, MIN_RATIO), MAX_RATIO)

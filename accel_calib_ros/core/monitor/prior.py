@@ -1,5 +1,5 @@
 """
-What a sensor may do between sessions and with temperature: from its own history, else the datasheet.
+What a sensor may do between sessions and with temperature: its history, else the datasheet.
 
 Two sizes the health check allows for on a calibration that is fine (:mod:`.health`):
 
@@ -82,8 +82,9 @@ def sensor_prior(allowance, calibrations=None, sensor=''):
         upper = math.sqrt(dof / chi2_quantile(0.84, dof))
         spread = biases.std(axis=0, ddof=1) * upper
         prior.allowance = np.clip(spread, ALLOWANCE_FLOOR, ALLOWANCE_CAP)
-        prior.allowance_source = (f"the bias scatter of {len(biases)} calibrations in the "
-                                  f"history of {sensor or 'this sensor'}")
+        name = sensor or 'this sensor'
+        prior.allowance_source = (f'the bias scatter of {len(biases)} calibrations in the '
+                                  f'history of {name}')
     temps = np.array([0.5 * (r['temperature_range_c'][0] + r['temperature_range_c'][1])
                       if r.get('temperature_range_c') else np.nan for r in rows])
     ok = np.isfinite(temps)

@@ -67,7 +67,7 @@ ZERO_MEMORY = 600
 ZERO_MIN = 5
 """Quiet blocks needed before the zero is believed (until then: the file's bias)."""
 ZERO_RANGE = math.radians(35.0)
-"""Largest zero believed, rad/s (the MPU-9250's ±5 °/s at 25 °C plus ±30 °/s over -40..85 °C)."""
+"""Largest zero believed, rad/s (MPU-9250: ±5 °/s at 25 °C, ±30 °/s more over -40..85 °C)."""
 
 
 class _Floor:
