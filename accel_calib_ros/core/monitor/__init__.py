@@ -6,7 +6,7 @@ The field monitor: the correction node's check of its own calibration while the 
 - :mod:`.still`: still, moving or frozen, block by block (the calibration's detector
   family, with the gyro's zero measured from the data alone);
 - :mod:`.inertial`: rest in the inertial sense (a lift, a vehicle, a ship is not a rest);
-- :mod:`.noise`: the noise of a period's mean from the data's own batch means;
+- :mod:`.mean_noise`: the noise of a period's mean from the data's own batch means;
 - :mod:`.prior`: the allowance and the temperature coefficient (history or datasheet);
 - :mod:`.gyro_bias`: the gyro bias re-estimated at rest, never from motion or a turn;
 - :mod:`.health`: the corrected acceleration at rest against gravity, and the

@@ -234,7 +234,7 @@ class BlockCutter:
         """Blocks of one stretch without clock steps; keep the unfinished one unless final."""
         if not len(t):
             return []
-        index = np.floor(t / self.step_s).astype(np.int64)
+        index = np.floor(np.round(t / self.step_s, 6)).astype(np.int64)
         cuts = np.flatnonzero(np.diff(index)) + 1
         starts, stops = np.r_[0, cuts], np.r_[cuts, len(t)]
         out = []
@@ -349,7 +349,7 @@ class Run:
         self.mag = _Line(block.t)
         self.temp_sum = 0.0
         self.temp_n = 0
-        self.inflation = 1.0            # variance of slow averages over white (:mod:`.noise`)
+        self.inflation = 1.0            # variance of slow averages over white (:mod:`.mean_noise`)
         self.add(block)
 
     def add(self, block):

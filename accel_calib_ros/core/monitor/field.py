@@ -35,7 +35,7 @@ from .blocks import BlockCutter, finite_rows, MIN_RATE_HZ, Run
 from .gyro_bias import DEG, GyroBiasTracker
 from .health import CalibrationHealth, ErrorModel, MG
 from .inertial import Neighbours, period_words
-from .noise import MeanNoise
+from .mean_noise import MeanNoise
 from .prior import sensor_prior
 from .still import StillDetector
 

@@ -23,7 +23,7 @@ covariance of four parts:
   ``c o`` per axis, ``c`` the temperature coefficient (:mod:`.prior`: the thermal
   tables' slope, the history's, or the datasheet's ±1.5 mg/°C, taken as two standard
   deviations), the same ``c`` at every orientation;
-- the fit's residual and the noise of the period's mean (:mod:`.noise`: measured from
+- the fit's residual and the noise of the period's mean (:mod:`.mean_noise`: measured from
   the data's own batch means, so correlated noise is allowed for).
 
 The statistic ``dᵀ C⁻¹ d`` is χ² with k degrees of freedom under the null; the check
@@ -225,7 +225,7 @@ class CalibrationHealth:
         """
         Return the observation of a still period (:class:`~.blocks.Run`), or None.
 
-        :param ratio: variance of its mean over the white-noise value (:mod:`.noise`).
+        :param ratio: variance of its mean over the white-noise value (:mod:`.mean_noise`).
         """
         if run.duration < self.min_still_s or run.n < 2:
             return None

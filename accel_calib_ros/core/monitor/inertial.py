@@ -158,13 +158,12 @@ class Neighbours:
         :return: list of ('confirm', obs) and ('drop', obs, words), in order.
         """
         out = []
-        ref_agrees = self.ref is not None and self.agree(self.ref, a, temp)
         keep = []
         for rest in self.pending:
             if self.agree(rest, a, temp):
                 out.append(('confirm', rest.obs))
                 self.ref = rest
-            elif ref_agrees:
+            elif self.ref is not None and self.agree(self.ref, a, temp):
                 out.append(('drop', rest.obs, self._drop('the rests before and after it agree '
                                                          'with each other, not with it: '
                                                          'motion (a lift, a vehicle)')))
