@@ -1,6 +1,8 @@
 """
-The field monitor's parts on hand-made blocks: cutting, the noise of means, the history's
-allowance, the publication of the gyro estimate, the neighbours of a rest.
+The field monitor's parts on hand-made blocks.
+
+Cutting, the noise of means, the history's allowance, the publication of the gyro
+estimate, the neighbours of a rest.
 """
 
 import math
