@@ -75,6 +75,10 @@ PARAMS = [
     Param('gyro_bias_stationary_limit_deg_s', 1.0,
           'the same while the stationary signal says stationary, deg/s (a turntable turning '
           'faster is not absorbed)', low=0.0, high=30.0),
+    Param('gyro_bias_powerup_limit_deg_s', 1.0,
+          'the same in the first still period after a start or ~/reset_gyro_bias, unless a '
+          'turn set off from rest: the power-up change of the zero-rate output, deg/s',
+          low=0.0, high=30.0),
     Param('health_check', True,
           'check the calibration against gravity and its temperature range at rest'),
     Param('health_min_still_s', 2.0, 'shortest still period the health check uses, s',
@@ -129,6 +133,7 @@ def settings_from(params):
         gyro_bias_limit_deg_s=params['gyro_bias_limit_deg_s'],
         gyro_vertical_limit_deg_s=params['gyro_bias_vertical_limit_deg_s'],
         gyro_stationary_limit_deg_s=params['gyro_bias_stationary_limit_deg_s'],
+        gyro_powerup_limit_deg_s=params['gyro_bias_powerup_limit_deg_s'],
         health_enabled=params['health_check'],
         health_min_still_s=params['health_min_still_s'],
         health_false_alarm=params['health_false_alarm'],

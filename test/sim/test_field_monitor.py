@@ -294,3 +294,25 @@ def test_settings_change_in_place_keeps_the_estimate():
     np.testing.assert_array_equal(mon.gyro_bias, before)
     assert mon.health.false_alarm == 1e-6 and mon.detector.factor == 4.0
     assert mon.gyro.limit == pytest.approx(2.0 * DEG)
+
+
+def test_without_a_heading_a_power_up_change_is_followed_a_slow_turn_from_rest_is_not():
+    # The first rest after a start takes up to 1 deg/s about gravity for the power-up
+    # change of the zero-rate output; a turn in place that sets off from rest (0.5 deg/s,
+    # 15 deg) is held, and the drive after it keeps the estimate the rest gave.
+    rng = np.random.default_rng(22)
+    rig = F.field_rig(rng, magnetometer=False)
+    pose = F.random_pose(rng, 5)
+    up = pose.inv().apply([0.0, 0.0, 1.0])
+    change = 0.5 * DEG * up                           # all of it along gravity
+    ev = F.Events(gyro_change=change)
+    segs = [F.move(pose, pose, 2.0), F.still(pose, 8.0), F.turn(pose, 0.5 * DEG, 30.0),
+            F.move(pose, pose, 5.0), F.still(pose, 5.0)]
+    mon, trace = run_day(rig, segs, ev, rng)
+    left = bias_left(rig, ev)
+    after_rest = [b for kind, t, b in trace if kind == 'still' and t <= 10.0][-1]
+    assert abs(up @ (after_rest - left)) < 0.03 * DEG              # followed in the rest
+    turning = [b for kind, t, b in trace if kind == 'turn']
+    assert max(abs(up @ (b - after_rest)) for b in turning) < 0.02 * DEG   # not the turn
+    mon.finish()
+    assert mon.gyro.turning >= 1

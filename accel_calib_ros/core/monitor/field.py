@@ -66,6 +66,7 @@ class MonitorSettings:
     gyro_bias_limit_deg_s: float = 30.0
     gyro_vertical_limit_deg_s: float = 0.2
     gyro_stationary_limit_deg_s: float = 1.0
+    gyro_powerup_limit_deg_s: float = 1.0
     health_enabled: bool = True
     health_min_still_s: float = 2.0
     health_false_alarm: float = 1e-4
@@ -100,7 +101,8 @@ class FieldMonitor:
                                       math.radians(s.max_rotation_deg_s))
         self.gyro = GyroBiasTracker(s.gyro_min_still_s, s.gyro_bias_limit_deg_s * DEG,
                                     s.gyro_vertical_limit_deg_s * DEG,
-                                    s.gyro_stationary_limit_deg_s * DEG)
+                                    s.gyro_stationary_limit_deg_s * DEG,
+                                    s.gyro_powerup_limit_deg_s * DEG)
         self.health = CalibrationHealth(
             ErrorModel(cal), s.health_false_alarm, s.health_allowance_mg * MG,
             s.health_min_still_s, s.health_cluster_deg, s.health_memory_s,
@@ -129,6 +131,8 @@ class FieldMonitor:
         self._t = None                  # the newest block time
         self._since = None              # stream time of the last still block (or the start)
         self._why = Counter()           # why the blocks since then were not still
+        self._turn_step = False         # the moves since the last rest began turning from rest
+        self._was_still = False
         self._stationary = (None, -math.inf)
         self.last_health = None         # the newest HealthResult (None: none yet)
 
@@ -147,6 +151,7 @@ class FieldMonitor:
         tr.limit = s.gyro_bias_limit_deg_s * DEG
         tr.vertical_limit = s.gyro_vertical_limit_deg_s * DEG
         tr.stationary_limit = s.gyro_stationary_limit_deg_s * DEG
+        tr.powerup_limit = s.gyro_powerup_limit_deg_s * DEG
         h = self.health
         h.false_alarm = float(s.health_false_alarm)
         h.min_still_s, h.memory_s = float(s.health_min_still_s), float(s.health_memory_s)
@@ -258,12 +263,19 @@ class FieldMonitor:
         self.neighbours.carry(block, self.detector.zero, doubt)
         self._confirm(self.neighbours.expire(block.t))
         if why:
+            # A change of the rate right after rest: a turn in place may be setting off.
+            if why.startswith('the rotation rate changed'):
+                self._turn_step = self._was_still
+            elif not why.startswith('rotating'):
+                self._turn_step = False
+            self._was_still = False
             self.motion = why
             self._why[why.split(':')[0]] += 1
             self._end()
             self._settle = 0
             return
         self.motion = ''
+        self._was_still = True
         self._since = block.t
         self._why.clear()
         self.still_blocks += 1
@@ -276,7 +288,7 @@ class FieldMonitor:
         ready = self._pending.pop(0)
         if self.run is None:
             self.run = Run(ready)
-            self.gyro.begin()
+            self.gyro.begin(after_turn=self._turn_step)
             if self.settings.health_enabled:
                 self._confirm(self.neighbours.arrive(ready.a_mean, ready.temp))
         else:

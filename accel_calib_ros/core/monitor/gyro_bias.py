@@ -26,9 +26,12 @@ of the next motion is never in it), once it has lasted ``min_still_s``:
     held, and said;
   * else, a rate about gravity at rest (beyond what the estimate explains already:
     other orientations see this component across gravity) of at most
-    ``vertical_limit`` (no heading reference) or ``stationary_limit`` (an external
+    ``vertical_limit`` (no heading reference), ``stationary_limit`` (an external
     signal says the robot is stationary: its wheels may be still on a turning
-    platform), plus 0.24 °/s per °C outside the calibrated range, is taken for a bias:
+    platform) or, in the first still period after a start or a reset that did not
+    begin with a change of the rate (a turn setting off), ``powerup_limit`` (the
+    power-up change of the zero-rate output), plus 0.24 °/s per °C outside the
+    calibrated range, is taken for a bias:
     **a turn in place slower than that is absorbed** (at most that much: once absorbed,
     the rest shows nothing more); a faster one is not absorbed at all (held, and said: a
     turntable, or a bias change that needs a heading reference or a gyro calibration);
@@ -65,7 +68,7 @@ JUDGE_EVERY_S = 0.3
 """Still time between two evaluations of the period so far, s (the cost stays tiny)."""
 SLEW = 1.0 * DEG
 """The published estimate moves at least this fast toward its target, rad/s per s."""
-SLEW_TIME_S = 1.0
+SLEW_TIME_S = 0.3
 """... or covers the distance in this much still time, whichever is faster."""
 PUBLISH_FLOOR = 0.02 * DEG
 """A tilt not yet seen may move the published estimate by at most this (or a quarter)."""
@@ -101,16 +104,20 @@ class GyroBiasTracker:
     :param vertical_limit: largest rate about gravity taken for a bias without a
         magnetometer or a stationary signal, rad/s.
     :param stationary_limit: the same while a stationary signal says stationary, rad/s.
+    :param powerup_limit: the same in the first still period after a start or a reset
+        (unless it began with a change of the rate), rad/s.
     :param prior: standard deviation of the residual at start and after a reset, rad/s.
     :param walk: growth of its standard deviation between periods, rad/s per √s.
     """
 
     def __init__(self, min_still_s=1.0, limit=30.0 * DEG, vertical_limit=0.2 * DEG,
-                 stationary_limit=1.0 * DEG, prior=1.0 * DEG, walk=0.5 * DEG / 60.0):
+                 stationary_limit=1.0 * DEG, powerup_limit=1.0 * DEG, prior=1.0 * DEG,
+                 walk=0.5 * DEG / 60.0):
         self.min_still_s = float(min_still_s)
         self.limit = float(limit)
         self.vertical_limit = float(vertical_limit)
         self.stationary_limit = float(stationary_limit)
+        self.powerup_limit = float(powerup_limit)
         self.prior, self.walk = float(prior), float(walk)
         self.reset()
 
@@ -132,10 +139,16 @@ class GyroBiasTracker:
         self._turned = False
         self._judged = 0.0
         self._held = 0.0
+        self._after_turn = False
 
     # -- one still period ----------------------------------------------------------------
-    def begin(self):
-        """Start a new still period."""
+    def begin(self, after_turn=False):
+        """
+        Start a new still period.
+
+        :param after_turn: it began with a change of the rate (a turn may be setting off).
+        """
+        self._after_turn = bool(after_turn)
         self._candidate = None
         self._dropped = False
         self._turned = False
@@ -178,7 +191,7 @@ class GyroBiasTracker:
             self.t_commit = run.t_stop
             self.updates += 1
             self.held_rate = self._held
-        self.turning += self._turned
+        self.turning += bool(self._turned or self._held)
         self._candidate = None
 
     def _judge(self, run, stationary, outside_c):
@@ -218,7 +231,9 @@ class GyroBiasTracker:
             why = ('the stationary signal says the robot is still' if stationary else
                    ('no magnetometer' if not math.isfinite(sd) else
                     f'the magnetometer cannot rule out a turn below {TEST_Z * sd / DEG:.2f} '
-                    'deg/s over this period') + ' and no stationary signal')
+                    'deg/s over this period') + ' and no stationary signal'
+                   + ('; the first rest since a start: the power-up change'
+                      if self._powerup(stationary) else ''))
             if abs(residual) <= bound:
                 rows.append(u)
                 self.vertical = (f'taken for a bias within ±{bound / DEG:.2f} deg/s ({why}: a '
@@ -252,6 +267,11 @@ class GyroBiasTracker:
                       f'({len(rows)} components)')
         return b, 0.5 * (P + P.T)
 
+    def _powerup(self, stationary):
+        return not stationary and self.updates == 0 and not self._after_turn \
+            and self.powerup_limit > self.vertical_limit
+
     def _vertical_bound(self, outside_c, stationary=None):
-        base = self.stationary_limit if stationary else self.vertical_limit
+        base = self.stationary_limit if stationary else \
+            self.powerup_limit if self._powerup(stationary) else self.vertical_limit
         return base + TEMPCO * max(float(outside_c), 0.0)
