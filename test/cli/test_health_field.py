@@ -276,3 +276,31 @@ def test_a_robot_warmer_than_its_bench_is_warned_not_told_to_recalibrate(tmp_pat
         temperature=31.0, knocks=[(0.0, 40 * MG * np.array([1.0, -1.0, 1.0]))]), rng)
     code, out = health(capsys, cal, knocked)
     assert code == 1 and out['recalibrate']
+
+
+# -- the allowance from the sensor's own history ----------------------------------------------
+def test_the_sensors_history_sets_the_allowance(tmp_path, capsys):
+    # A sensor whose bias moves about 4 mg between sessions: a 5 mg shift is within what
+    # it does, so the check with its history does not call it stale; without the
+    # history (the 1 mg default) the same data say recalibrate.
+    import copy
+    from accel_calib_ros.dataio.history import History
+    rng = np.random.default_rng(18)
+    rig = F.field_rig(rng)
+    rig.calibration.sensor_id = 'imu_left'
+    segs, _ = cycle(rng, count=6)
+    shift = 5 * MG * np.array([1.0, -1.0, 1.0]) / math.sqrt(3.0)
+    cal, data = write(tmp_path, 'cal', rig, segs, F.Events(knocks=[(0.0, shift)]), rng)
+    code, out = health(capsys, cal, data)
+    assert code == 1 and 'history.sqlite' in out['allowance']['history']
+    with History(tmp_path / 'history.sqlite') as db:
+        for k in range(6):
+            past = copy.deepcopy(rig.calibration)
+            past.bias = past.bias + rng.normal(0.0, 4.0 * MG, 3)
+            db.add_calibration('imu_left', past, time_s=1.7e9 + 86400.0 * k)
+    code, out = health(capsys, cal, data)
+    assert code == 0, out['message']
+    assert 'bias scatter of 6 calibrations' in out['allowance']['allowance_source']
+    assert min(out['allowance']['allowance_mg']) > 2.0
+    code, out = health(capsys, cal, data, '--sensor', 'someone_else')
+    assert code == 1 and out['allowance']['allowance_source'].startswith('the setting')
