@@ -40,6 +40,7 @@ once per block on the Imu path.
 import json
 import math
 import threading
+import time
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 import numpy as np
@@ -181,6 +182,7 @@ class NodeMonitor:
         self.bias = (0.0, 0.0, 0.0)     # residual gyro bias to subtract, rad/s
         self.history = 'none'           # what was read of the sensor's history
         self._t_last = None             # stamp of the newest sample handed over, s
+        self._fed = time.monotonic()    # when samples were last handed over (wall clock)
         self._problem = ''              # a failure of the monitor, said in /diagnostics
         self._published = None          # the HealthResult last sent on ~/health
         self._writing = False           # the node itself updates ESTIMATE_PARAM
@@ -220,6 +222,7 @@ class NodeMonitor:
             self.monitor = None if cal is None else FieldMonitor(cal, settings_from(
                 self.node.params), history)
             self.bias = (0.0, 0.0, 0.0)
+            self._fed = time.monotonic()
             self._refresh()
         self.publish_health(force=True)
 
@@ -273,6 +276,7 @@ class NodeMonitor:
                 if np.all(np.isfinite(bias)):
                     self.bias = (float(bias[0]), float(bias[1]), float(bias[2]))
             self._t_last = float(t[-1])
+            self._fed = time.monotonic()
             self._problem = ''
         except Exception as err:      # noqa: B902 - the node never dies of the monitor:
             # keep the last estimate (and the published stream) and say so.
@@ -383,7 +387,12 @@ class NodeMonitor:
 
     def _state(self, mon):
         """Return the monitor's state beside its last check (under the lock), JSON-ready."""
-        return {'sensor_fault': mon.fault, 'idle': mon.idle_words(),
+        quiet = time.monotonic() - self._fed
+        idle = mon.idle_words()
+        if self.active and quiet >= mon.settings.still_timeout_s:
+            idle = (f'no imu/data_raw for {quiet:.0f} s: the gyro bias and the calibration '
+                    'are not being checked')
+        return {'sensor_fault': mon.fault, 'idle': idle,
                 'idle_s': round(mon.idle_s(), 1), 'too_slow': mon.too_slow,
                 'still_periods': mon.periods, 'still_time_s': round(mon.still_time_s, 1),
                 'moving_because': mon.motion or 'still',

@@ -318,3 +318,14 @@ def test_only_the_monitor_parameters_reach_the_monitor(tmp_path, rig_factory,  #
     assert ok.successful and calls == []
     (ok,) = rig.node.set_parameters([Parameter('health_false_alarm', value=1e-5)])
     assert ok.successful and calls == [{'health_false_alarm': 1e-5}]
+
+
+def test_a_stream_that_stops_is_a_warning_too(tmp_path, rig_factory):  # noqa: F811
+    path = tmp_path / 'calibration.yaml'
+    save_calibration(identity_calibration(), path)
+    rig = rig_factory(path)
+    (ok,) = rig.node.set_parameters([Parameter('still_timeout_s', value=1.0)])
+    assert ok.successful, ok.reason
+    rig.spin(1.2)
+    status = _statuses(rig)['accel_correction: calibration health']
+    assert status.level == DiagnosticStatus.WARN and 'no imu/data_raw for' in status.message
