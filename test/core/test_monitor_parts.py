@@ -153,16 +153,22 @@ def test_a_plateau_between_two_rests_that_agree_is_dropped_a_lasting_shift_is_ke
     up = np.array([0.0, 0.0, G])
     lift = Neighbours()
     out = []
-    for a in (up, up + [0, 0, 0.8], up):         # rest, a lift's plateau, rest
-        out += lift.arrive(a, 25.0)
-        lift.close(_rest(a), {'d': float(np.linalg.norm(a) - G), 'a': a})
+    for k, a in enumerate((up, up + [0, 0, 0.8], up)):     # rest, a lift's plateau, rest
+        out += lift.arrive(a, 25.0, 20.0 * k)
+        lift.close(_rest(a, t0=20.0 * k), {'d': float(np.linalg.norm(a) - G), 'a': a})
     assert [r[0] for r in out] == ['confirm', 'drop']
     knock = Neighbours()
     out = []
-    for a in (up, up + [0, 0, 0.05], up + [0, 0, 0.05]):      # rest, a 5 mg shift that stays
-        out += knock.arrive(a, 25.0)
-        knock.close(_rest(a), {'d': float(np.linalg.norm(a) - G), 'a': a})
+    for k, a in enumerate((up, up + [0, 0, 0.05], up + [0, 0, 0.05])):  # a 5 mg shift stays
+        out += knock.arrive(a, 25.0, 20.0 * k)
+        knock.close(_rest(a, t0=20.0 * k), {'d': float(np.linalg.norm(a) - G), 'a': a})
     assert [r[0] for r in out] == ['confirm', 'confirm']
+    split = Neighbours()                  # one plateau in two halves confirms nothing
+    out = []
+    for t0, a in ((0.0, up), (20.0, up + [0, 0, 0.8]), (23.0, up + [0, 0, 0.8]), (26.0, up)):
+        out += split.arrive(a, 25.0, t0)
+        split.close(_rest(a, 1.5, t0=t0), {'d': float(np.linalg.norm(a) - G)})
+    assert [r[0] for r in out] == ['confirm', 'drop', 'drop']
 
 
 def test_a_tilt_without_rotation_is_a_vehicle_braking():
@@ -170,9 +176,9 @@ def test_a_tilt_without_rotation_is_a_vehicle_braking():
     braking = up + np.array([1.5, 0.0, 0.0])                  # 8.7 deg, |a| +11 mg
     van = Neighbours()
     out = []
-    for a in (up, braking, up):
-        out += van.arrive(a, 25.0)
-        van.close(_rest(a), {'d': float(np.linalg.norm(a) - G), 'a': a})
+    for k, a in enumerate((up, braking, up)):
+        out += van.arrive(a, 25.0, 20.0 * k)
+        van.close(_rest(a, t0=20.0 * k), {'d': float(np.linalg.norm(a) - G), 'a': a})
     assert [r[0] for r in out] == ['confirm', 'drop']
 
 

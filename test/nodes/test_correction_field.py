@@ -101,8 +101,8 @@ def test_health_is_latched_and_says_recalibrate(tmp_path, rig_factory):  # noqa:
     stream(rig, still_messages(rng, 400, 100.0, gravity=(0.0, 0.0, G + 0.1)))   # 10 mg off
     stream(rig, [m for m in still_messages(rng, 30, 104.0)
                  if not m.linear_acceleration.__setattr__('x', 5.0)])          # then a move
-    # The next rest confirms the first one was a rest (not a lift's plateau).
-    stream(rig, still_messages(rng, 150, 104.3, gravity=(0.0, 0.0, G + 0.1)))
+    # A rest 10 s later confirms the first one was a rest (not a lift's plateau).
+    stream(rig, still_messages(rng, 150, 112.0, gravity=(0.0, 0.0, G + 0.1)))
     rig.spin_until(lambda: rig.node.monitor.monitor.health.periods >= 1)
     latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)

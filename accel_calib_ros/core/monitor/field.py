@@ -290,7 +290,7 @@ class FieldMonitor:
             self.run = Run(ready)
             self.gyro.begin(after_turn=self._turn_step)
             if self.settings.health_enabled:
-                self._confirm(self.neighbours.arrive(ready.a_mean, ready.temp))
+                self._confirm(self.neighbours.arrive(ready.a_mean, ready.temp, ready.t))
         else:
             self.run.add(ready)
         self.still_time_s += ready.duration

@@ -19,8 +19,10 @@ rest is physics across the period and between periods:
    rest *agrees* with a period when ``|a|`` differs by less than ``MAG_GATE`` (plus what
    the calibration's error can change between their orientations and temperatures)
    and the direction by less than ``DIR_GATE`` plus three times the carried doubt.
-   A period is *confirmed* (it goes to the health check) when a later rest agrees with
-   it: a bias shift persists, so the rest after a knock agrees with the rest before it.
+   A period is *confirmed* (it goes to the health check) when a later rest that begins
+   at least ``CONFIRM_S`` after it began agrees with it: a bias shift persists, so the
+   rests after a knock agree with each other, while the two halves of one plateau (a
+   lift's lasts seconds) confirm nothing.
    It is *dropped* as motion when a later rest disagrees with it but agrees with the
    confirmed rest before it: the elevator's plateau between two rests on the floor, the
    van's braking between cruising and standing. A period no rest has answered after
@@ -57,6 +59,8 @@ DIR_GATE = math.radians(1.0)
 """Their directions, carried by the gyro, differ by less than this, rad (0.17 m/s² across)."""
 SCALE_DOUBT = 0.03
 """Doubt of an angle the gyro turned, fraction (MPU-9250 scale ±3 %)."""
+CONFIRM_S = 10.0
+"""A rest confirms a period only when it begins this long after the period began, s."""
 HOLD_S = 120.0
 """A period no rest answers within this is judged alone, s."""
 GROSS = 0.03 * G0
@@ -93,12 +97,12 @@ def rotate(v, angle):
 class _Rest:
     """A period's mean acceleration, carried through the motion after it."""
 
-    __slots__ = ('a', 'sigma', 'temp', 't', 'obs', 'run')
+    __slots__ = ('a', 'sigma', 'temp', 't', 't_start', 'obs')
 
-    def __init__(self, a, temp, t, obs=None, run=None):
+    def __init__(self, a, temp, t, t_start, obs=None):
         self.a = np.array(a, float)
         self.sigma = 0.0            # doubt of its direction, rad
-        self.temp, self.t, self.obs, self.run = float(temp), float(t), obs, run
+        self.temp, self.t, self.t_start, self.obs = float(temp), float(t), float(t_start), obs
 
     def carry(self, angle, doubt):
         self.a = rotate(self.a, -angle)
@@ -151,9 +155,9 @@ class Neighbours:
         angle = math.acos(min(max(cos, -1.0), 1.0))
         return angle <= DIR_GATE + 3.0 * rest.sigma + gate / G0
 
-    def arrive(self, a, temp):
+    def arrive(self, a, temp, t):
         """
-        Answer the periods waiting: a new rest begins with mean ``a``.
+        Answer the periods waiting: a new rest begins at ``t`` (s) with mean ``a``.
 
         :return: list of ('confirm', obs) and ('drop', obs, words), in order.
         """
@@ -161,6 +165,9 @@ class Neighbours:
         keep = []
         for rest in self.pending:
             if self.agree(rest, a, temp):
+                if t - rest.t_start < CONFIRM_S:
+                    keep.append(rest)
+                    continue
                 out.append(('confirm', rest.obs))
                 self.ref = rest
             elif self.ref is not None and self.agree(self.ref, a, temp):
@@ -174,7 +181,7 @@ class Neighbours:
 
     def close(self, run, obs):
         """Hold a still period that ended, with its observation ``obs``, for the next rest."""
-        self.pending.append(_Rest(run.accel_mean, run.temp, run.t_stop, obs, run))
+        self.pending.append(_Rest(run.accel_mean, run.temp, run.t_stop, run.t_start, obs))
 
     def expire(self, t=None):
         """
