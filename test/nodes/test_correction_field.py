@@ -1,5 +1,5 @@
 """
-The correction node in the field (issues 24, 26): its monitor, its frames, one node.
+The correction node in the field: its monitor, its frames, one node.
 
 In-process on real rclpy over DDS (the node under test in the test's own context), plus
 one subprocess started the way launch_ros starts it (remaps and a params file).
@@ -162,7 +162,7 @@ def test_the_estimate_parameter_is_read_only(tmp_path, rig_factory):  # noqa: F8
     assert not r.successful and 'read-only' in r.reason
 
 
-# -- issue 26: frames that tell the truth ------------------------------------------------------
+# -- frames that tell the truth ----------------------------------------------------------------
 def test_a_level_trim_gives_the_levelled_frame(tmp_path, rig_factory):  # noqa: F811
     path = tmp_path / 'calibration.yaml'
     cal = identity_calibration()
@@ -188,7 +188,7 @@ def test_without_a_trim_the_raw_frame_passes(tmp_path, rig_factory):  # noqa: F8
     assert {m.header.frame_id for m in got} == {'imu_link'}
 
 
-# -- issue 26: one node per process ---------------------------------------------------------------
+# -- one node per process -----------------------------------------------------------------------
 def test_remapped_node_name_names_exactly_one_node(tmp_path):
     path = tmp_path / 'calibration.yaml'
     save_calibration(identity_calibration(), path)

@@ -1,7 +1,7 @@
 """
 The field monitor's science (core.monitor) on the field simulator (sim.field_stream), ROS-free.
 
-Short simulated days, a few seeds: the claims of issue 24 as properties; the rates over
+Short simulated days, a few seeds: the monitor's claims as properties; the rates over
 many seeds are in bench/bench_monitor.py.
 """
 
