@@ -192,3 +192,19 @@ def test_a_heaving_period_wanders():
         run = Run(b) if run is None else run.add(b) or run
     assert period_words(run)
     assert not period_words(_rest([0.0, 0.0, G]))
+
+
+# -- frozen ---------------------------------------------------------------------------------
+def test_a_sensor_stuck_on_two_codes_is_frozen_a_live_quantised_one_is_not():
+    from accel_calib_ros.core.monitor.still import frozen_words
+    rng = np.random.default_rng(9)
+    lsb = G / 16384.0
+    t = np.arange(20) / 200.0
+    base = np.array([0.1, -0.2, G])
+    stuck = base + lsb * rng.integers(0, 2, (20, 3))
+    live = np.round((base + rng.normal(0.0, 0.03, (20, 3))) / lsb) * lsb
+    gyro = rng.normal(0.0, 0.002, (20, 3))
+    assert 'repeats its output' in frozen_words(Block.of(t, stuck, gyro))
+    assert frozen_words(Block.of(t, live, gyro)) == ''
+    assert frozen_words(Block.of(t, live, np.zeros((20, 3)))) == ''     # no gyro recorded
+    assert 'gyro repeats' in frozen_words(Block.of(t, live, np.tile(gyro[0], (20, 1))))

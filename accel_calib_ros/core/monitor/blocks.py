@@ -56,7 +56,8 @@ class Block:
     :param m_n: magnetometer samples in the block (0: none).
     :param m_mean: (3,) mean corrected field, µT, or None.
     :param m_var: (3,) its within-block variance, or None.
-    :param a_repeats: samples equal to the one before on every accelerometer axis.
+    :param a_repeats: samples equal to the one before, on the accelerometer axis that
+        repeats least (a stuck sensor repeats on every axis).
     :param g_repeats: the same for the gyro.
     """
 
@@ -91,7 +92,7 @@ class Block:
         if gyro is not None:
             g = np.asarray(gyro, float)
             g_mean, g_var = g.mean(axis=0), g.var(axis=0)
-            g_rep = int(np.count_nonzero(np.all(g[1:] == g[:-1], axis=1)))
+            g_rep = int(np.min(np.count_nonzero(g[1:] == g[:-1], axis=0)))
         m_n = 0
         if mag is not None and len(mag):
             m = np.asarray(mag, float)
@@ -101,7 +102,7 @@ class Block:
             tv = np.asarray(temp, float)
             tv = tv[np.isfinite(tv)]
             tc = float(tv.mean()) if len(tv) else float('nan')
-        a_rep = int(np.count_nonzero(np.all(a[1:] == a[:-1], axis=1)))
+        a_rep = int(np.min(np.count_nonzero(a[1:] == a[:-1], axis=0)))
         span = float(t[-1] - t[0]) * len(t) / (len(t) - 1)      # n samples stand for n dt
         return cls(len(t), float(t.mean()), span, a.mean(axis=0), a.var(axis=0),
                    g_mean, g_var, tc, m_n, m_mean, m_var, a_rep, g_rep)

@@ -5,7 +5,8 @@ A block is quiet when (as :class:`~accel_calib_ros.core.windows.OnlineStaticDete
 judges a moving window):
 
 - the sensor is alive: a block whose samples all repeat (no variance on every axis),
-  most of whose samples equal the one before, or whose acceleration scatters less than
+  many of whose samples equal the one before on every axis (``FROZEN_REPEATS``: a few
+  codes repeating), or whose acceleration scatters less than
   ``FROZEN_FRACTION`` of the calibration's own noise, is *frozen* (a stuck sensor or a
   driver repeating its last frame): never still, and the monitor reports it;
 - the within-block standard deviation of the acceleration is below ``factor`` x its
@@ -58,8 +59,9 @@ GYRO_CAP = 0.02
 """Highest gyro floor believed, rad/s per sample (1.1 °/s; an MPU-9250 at 1 kHz: 0.22 °/s)."""
 MIN_GYRO_FLOOR = 1e-5
 """Lowest gyro floor believed, rad/s."""
-FROZEN_REPEATS = 0.5
-"""A block of which this fraction of samples repeat the one before exactly is frozen."""
+FROZEN_REPEATS = 0.4
+"""A block of which this fraction of samples repeat the one before exactly on every axis
+is frozen (a live MPU-9250 at ±2 g scatters over tens of codes: a few per cent)."""
 FROZEN_FRACTION = 0.05
 """... or whose acceleration scatters less than this fraction of the calibration's noise."""
 ZERO_MEMORY = 600
@@ -106,8 +108,8 @@ def frozen_words(block, accel_noise=None):
     if accel_noise is not None and block.a_std < FROZEN_FRACTION * accel_noise:
         return (f'the accelerometer has almost no noise ({block.a_std * 1e3:.3f} mm/s2 '
                 f'against {accel_noise * 1e3:.1f} in the calibration)')
-    if block.g_var is not None and (not np.any(block.g_var > 0.0)
-                                    or block.g_repeats >= FROZEN_REPEATS * n):
+    if block.g_var is not None and np.any(block.g_mean != 0.0) and (
+            not np.any(block.g_var > 0.0) or block.g_repeats >= FROZEN_REPEATS * n):
         return f'the gyro repeats its output ({block.g_repeats + 1} of {block.n} samples ' \
                'identical)'
     return ''
