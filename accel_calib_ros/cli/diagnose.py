@@ -13,7 +13,7 @@ REPORT_FILES = ('report.md', 'gap.png', 'probes.png')
 def report_files(folder, still=False):
     """Return the names the report would write in ``folder`` that may exist already."""
     if still:
-        from ..modelgap.still_pose_report import REPORT_FILES as STILL_FILES
+        from ..modelgap.still_pose_report import STILL_REPORT_FILES as STILL_FILES
         return list(STILL_FILES)
     names = list(REPORT_FILES)
     if os.path.isdir(folder):

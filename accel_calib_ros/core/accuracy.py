@@ -96,11 +96,23 @@ def norm_errors(T, covariance, directions, gravity=G0):
     :returns: (M,) m/s².
     """
     T, C = _check(T, covariance)
+    radial = norm_jacobians(T, directions, gravity)
+    return np.sqrt(np.maximum(np.einsum('mk,kl,ml->m', radial, C, radial), 0.0))
+
+
+def norm_jacobians(T, directions, gravity=G0):
+    """
+    Return the derivative of ``|corrected| - gravity`` by the parameters, (M, 9).
+
+    First order, at the true acceleration ``gravity * direction`` (sensor frame): the rows
+    whose covariance :func:`norm_errors` gives (the field monitor's health check uses them
+    across orientations).
+    """
+    T = np.asarray(T, dtype=float).reshape(3, 3)
     u = np.asarray(directions, dtype=float).reshape(-1, 3)
     u = u / np.linalg.norm(u, axis=1, keepdims=True)
     J = _jacobians(np.linalg.inv(T), u, gravity)
-    radial = np.einsum('mi,mik->mk', u, J)
-    return np.sqrt(np.maximum(np.einsum('mk,kl,ml->m', radial, C, radial), 0.0))
+    return np.einsum('mi,mik->mk', u, J)
 
 
 FACE_NAMES = ('x axis up', 'x axis down', 'y axis up', 'y axis down', 'z axis up',

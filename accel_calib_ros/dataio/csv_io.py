@@ -216,7 +216,7 @@ def _parse_fast(f, columns, empty_ok=()):
                           converters=dict.fromkeys(empty_ok, _empty_is_nan) or None)
 
 
-def _parse_careful(path, header_lineno, layout, names):
+def _parse_careful(path, header_lineno, layout, names, non_finite='refuse'):
     """
     Parse the used columns cell by cell, to find and word the problem the fast path hit.
 
@@ -255,6 +255,11 @@ def _parse_careful(path, header_lineno, layout, names):
                 del cells[n]
                 del empty[n]
     _mag_rows_without_sample(path, cells, empty, lines)
+    if non_finite == 'keep':        # a missing value is as good as NaN
+        for name, rows in empty.items():
+            for i in rows:
+                cells[name][i] = 'nan'
+            empty[name] = []
     for name, rows in empty.items():
         if rows:
             where = listed(lines[i] for i in rows)
@@ -385,8 +390,13 @@ def load_csv(path, on_read=None, time_unit='s'):
     return samples
 
 
-def iter_csv(path, chunk_rows, on_read=None, time_unit='s'):
-    """Yield checked Samples pieces of a CSV file, ``chunk_rows`` data lines at a time."""
+def iter_csv(path, chunk_rows, on_read=None, time_unit='s', non_finite='refuse'):
+    """
+    Yield checked Samples pieces of a CSV file, ``chunk_rows`` data lines at a time.
+
+    :param non_finite: 'refuse' (a NaN, an infinite or an empty cell is an InputError) or
+        'keep' (such cells are NaN in the samples, for a reader that skips them itself).
+    """
     try:
         f, names, header_lineno, layout = _open_csv(path)
         with f:
@@ -399,11 +409,11 @@ def iter_csv(path, chunk_rows, on_read=None, time_unit='s'):
                         on_read(nbytes)
                     columns = seconds(_columns(block, used), time_unit)
                     piece = _checked_samples(path, columns, None, header_lineno, offset,
-                                             t_before)
+                                             t_before, non_finite)
                     if offset == 0:
                         check_time_spacing(path, piece.t, time_unit)
                     offset += len(piece)
-                    t_before = piece.t[-1]
+                    t_before = _last_time(piece.t, t_before)
                     yield piece
             except ValueError:
                 if offset:      # a bad cell past the first block: word it, from the start
@@ -412,8 +422,9 @@ def iter_csv(path, chunk_rows, on_read=None, time_unit='s'):
             if offset == 0 and columns is not None:
                 raise InputError(f'{path}: the file has a header row but no data rows')
         if columns is None:   # the careful parse decides (e.g. an all-empty temp column)
-            columns, lines = _parse_careful(path, header_lineno, layout, names)
-            whole = _checked_samples(path, seconds(columns, time_unit), lines, header_lineno)
+            columns, lines = _parse_careful(path, header_lineno, layout, names, non_finite)
+            whole = _checked_samples(path, seconds(columns, time_unit), lines, header_lineno,
+                                     non_finite=non_finite)
             check_time_spacing(path, whole.t, time_unit)
             for a in range(0, len(whole), chunk_rows):
                 yield whole.subset(slice(a, a + chunk_rows))
@@ -423,7 +434,14 @@ def iter_csv(path, chunk_rows, on_read=None, time_unit='s'):
         raise InputError(f'{path}: cannot read the file ({exc.strerror or exc})') from None
 
 
-def _checked_samples(path, columns, lines, header_lineno, row_offset=0, t_before=None):
+def _last_time(t, before):
+    """Return the last finite time of ``t`` (else ``before``)."""
+    finite = t[np.isfinite(t)]
+    return float(finite[-1]) if len(finite) else before
+
+
+def _checked_samples(path, columns, lines, header_lineno, row_offset=0, t_before=None,
+                     non_finite='refuse'):
     """
     Check parsed CSV columns (finite values, time order) and return them as Samples.
 
@@ -431,6 +449,9 @@ def _checked_samples(path, columns, lines, header_lineno, row_offset=0, t_before
     :param lines: (N,) file line numbers of the rows, or None (found again when needed).
     :param row_offset: data rows before these ones (a piece of a file read in pieces).
     :param t_before: time of the row just before these ones, s, or None.
+    :param non_finite: 'refuse', or 'keep' (NaN and infinite cells, and values beyond
+        the plausible limits, are kept as NaN: the reader skips them; the times of the
+        rows that have one must still increase).
     """
     if not columns or len(columns['t']) == 0:
         raise InputError(f'{path}: the file has a header row but no data rows')
@@ -441,7 +462,9 @@ def _checked_samples(path, columns, lines, header_lineno, row_offset=0, t_before
         return _data_lines(path, header_lineno, [int(r) + row_offset for r in rows])
 
     t = columns['t']
-    if t_before is not None and t[0] < t_before:
+    keep = non_finite == 'keep'
+    timed = np.flatnonzero(np.isfinite(t)) if keep else np.arange(len(t))
+    if t_before is not None and len(timed) and t[timed[0]] < t_before:
         line = line_numbers([0])[0]
         raise InputError(f'{path}, line {line}: time goes backwards (t={t[0]:.9g} s after '
                          f'{t_before:.9g} s); rows must be in increasing time order')
@@ -472,6 +495,10 @@ def _checked_samples(path, columns, lines, header_lineno, row_offset=0, t_before
     for what, values in checks:
         with np.errstate(invalid='ignore'):
             finite = np.isfinite(values) & (np.abs(values) <= PLAUSIBLE_LIMIT[what])
+        if keep:
+            if values is not mag and not finite.all():
+                values[~finite] = np.nan        # implausible: as good as missing
+            continue
         if values is mag:           # a row without a magnetometer sample is all NaN
             finite |= np.all(np.isnan(values), axis=1)[:, None]
         bad = np.nonzero(~(finite if finite.ndim == 1 else finite.all(axis=1)))[0]
@@ -480,9 +507,9 @@ def _checked_samples(path, columns, lines, header_lineno, row_offset=0, t_before
             raise InputError(f'{path}: NaN or infinite (or beyond {PLAUSIBLE_LIMIT[what]:g}) '
                              f'{what} on {bad.size} row(s), line(s) '
                              f'{where}; clean or drop those rows')
-    back = np.nonzero(np.diff(t) < 0)[0]
+    back = np.nonzero(np.diff(t[timed]) < 0)[0]
     if back.size:
-        i = int(back[0]) + 1
+        i = int(timed[back[0] + 1])
         line = line_numbers([i])[0]
         raise InputError(
             f'{path}, line {line}: time goes backwards (t={t[i]:.9g} s after {t[i - 1]:.9g} s; '

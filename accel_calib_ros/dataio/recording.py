@@ -78,7 +78,7 @@ def load_samples(path, imu_topic=None, temp_topic=None, on_read=None, time_unit=
 
 
 def iter_samples(path, chunk_rows=PARSE_CHUNK_ROWS, imu_topic=None, temp_topic=None, on_read=None,
-                 time_unit='s', mag_topic=None):
+                 time_unit='s', mag_topic=None, non_finite='refuse'):
     """
     Load a recording piece by piece: a generator of validated ``Samples``.
 
@@ -94,12 +94,17 @@ def iter_samples(path, chunk_rows=PARSE_CHUNK_ROWS, imu_topic=None, temp_topic=N
     :param on_read: CSV only: called with the characters read for each piece (progress).
     :param time_unit: CSV only, as for ``load_samples``.
     :param mag_topic: bags only, as for ``load_samples``.
+    :param non_finite: CSV only: 'refuse', or 'keep' NaN, infinite and empty cells as NaN
+        (for a reader that skips such rows itself, as ``accel-calib health`` does).
     :return: generator of Samples, in time order.
     :raises InputError: as ``load_samples``.
     """
     p = Path(path)
     if p.suffix.lower() == '.csv' and p.is_file():
-        for piece in iter_csv(p, chunk_rows, on_read, time_unit or 's'):
+        for piece in iter_csv(p, chunk_rows, on_read, time_unit or 's', non_finite):
+            if non_finite == 'keep':
+                yield piece
+                continue
             try:
                 yield piece.validate()
             except InputError as exc:

@@ -477,12 +477,12 @@ class TemperatureRate(PerAxisEffect):
 
     def bind(self, c, tau=None):
         """Return the effect bound to this session's temperature history at ``tau`` s."""
-        from ..core.accelerometer.thermal_lag import GAP_S, lagged_temperature
+        from ..core.accelerometer.thermal_lag import LAG_GAP_S, lagged_temperature
         tau = float(np.median(self.tau_range(c))) if tau is None else float(tau)
         order = np.argsort(c.time, kind='stable')
         time, temp = c.time[order], c.temp[order]
         spacing = float(np.median(np.diff(time))) if len(time) > 1 else 1.0
-        gradient = temp - lagged_temperature(time, temp, tau, max(GAP_S, 1.5 * spacing))
+        gradient = temp - lagged_temperature(time, temp, tau, max(LAG_GAP_S, 1.5 * spacing))
         return TemperatureRate(tau, time, gradient)
 
     def bindings(self, c):

@@ -27,7 +27,7 @@ from ..dataio.figures import save_figure
 matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402, I100
 
-REPORT_FILES = ('report.md', 'offsets.png', 'hysteresis.png', 'held_out.png')
+STILL_REPORT_FILES = ('report.md', 'offsets.png', 'hysteresis.png', 'held_out.png')
 """Files the one-pose report may write."""
 
 LEG_STYLE = ((1, 'tab:red', 'heating'), (-1, 'tab:blue', 'cooling'), (0, 'grey', 'steady'))

@@ -160,7 +160,7 @@ class CorrectionNode(Node):
         if set(changes) & {'level_frame_id', 'frame_id'}:
             self._frames = ('', '')
             self._update_level_frame()
-        if set(changes) & {p.name for p in MONITOR_PARAMS} | {'temperature_margin_c'}:
+        if set(changes) & ({p.name for p in MONITOR_PARAMS} | {'temperature_margin_c'}):
             self.monitor.apply(changes)
 
     def _tick(self):
@@ -241,9 +241,10 @@ class CorrectionNode(Node):
         mon = self.monitor
         if mon.active:      # the field monitor: one list append, a block every 0.1 s
             buf = mon.buf
-            buf.append((x, y, z, gx, gy, gz, temp))
+            st = msg.header.stamp
+            buf.append((st.sec + st.nanosec * 1e-9, x, y, z, gx, gy, gz, temp))
             if len(buf) >= mon.block_n:
-                mon.flush(msg.header.stamp)
+                mon.flush()
             bx, by, bz = mon.bias
             w.x, w.y, w.z = gx - bx, gy - by, gz - bz
         h = msg.header

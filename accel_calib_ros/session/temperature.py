@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.accelerometer.thermal_pose import fit_still
-from ..core.accelerometer.thermal_still import BIN_S, MIN_SPAN_C, still_bins
+from ..core.accelerometer.thermal_still import BIN_S, MIN_THERMAL_SPAN_C, still_bins
 
 STILL_BAND_WIDTH_C = 5.0
 """Default band width of a one-pose thermal fit, °C (dense data: finer nodes than poses)."""
@@ -39,7 +39,7 @@ class ThermalSettings:
 
     band_width_c: float = STILL_BAND_WIDTH_C
     bin_s: float = BIN_S
-    min_span_c: float = MIN_SPAN_C
+    min_span_c: float = MIN_THERMAL_SPAN_C
     hysteresis: str = 'auto'
     gravity: float = 9.80665
     min_effect_mg: float = None

@@ -93,10 +93,18 @@ def test_a_knock_says_recalibrate_with_size_and_cause_exit_1(capsys, files):
     assert abs(summary['first_failure']['disagreement_mg']) > 3.0
 
 
-def test_a_temperature_outside_the_range_is_named(capsys, files):
+def test_a_temperature_outside_the_range_is_a_warning_with_its_size(capsys, files):
+    # A thermal calibration 15 degC out of range: its own tables' slope says how much the
+    # temperature could explain; the data agree within that, so a warning, not stale.
     code, out, _ = run(capsys, 'health', files['cal'], files['hot'], '--json')
     summary = json.loads(out)
-    assert code == 1 and summary['cause'].startswith('temperature outside the calibrated range')
+    assert code == 0 and summary['status'] == 'warn' and not summary['recalibrate']
+    assert summary['cause'].startswith('temperature outside the calibrated range')
+    assert summary['final']['temperature_outside_c'] == pytest.approx(15.0, abs=0.1)
+    assert max(summary['final']['temperature_explains_mg']) > 10.0
+    assert 'thermal tables' in summary['final']['tempco_source']
+    code, out, _ = run(capsys, 'health', files['cal'], files['hot'])
+    assert out.startswith('healthy, with a warning') and 'could explain up to' in out
 
 
 def test_acceleration_only_and_other_units(capsys, files):

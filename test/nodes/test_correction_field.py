@@ -101,12 +101,14 @@ def test_health_is_latched_and_says_recalibrate(tmp_path, rig_factory):  # noqa:
     stream(rig, still_messages(rng, 400, 100.0, gravity=(0.0, 0.0, G + 0.1)))   # 10 mg off
     stream(rig, [m for m in still_messages(rng, 30, 104.0)
                  if not m.linear_acceleration.__setattr__('x', 5.0)])          # then a move
+    # A rest 10 s later confirms the first one was a rest (not a lift's plateau).
+    stream(rig, still_messages(rng, 150, 112.0, gravity=(0.0, 0.0, G + 0.1)))
     rig.spin_until(lambda: rig.node.monitor.monitor.health.periods >= 1)
     latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
     got = []
     rig.peer.create_subscription(String, '/accel_correction/health', got.append, latched)
-    rig.spin_until(lambda: got and json.loads(got[-1].data)['level'] == 'warn')
+    rig.spin_until(lambda: got and json.loads(got[-1].data)['level'] == 'recalibrate')
     body = json.loads(got[-1].data)
     assert body['recalibrate'] and body['message'].startswith('recalibrate')
     assert body['disagreement_mg'] == pytest.approx(10.2, abs=1.0)
@@ -160,7 +162,7 @@ def test_the_estimate_parameter_is_read_only(tmp_path, rig_factory):  # noqa: F8
     assert not r.successful and 'read-only' in r.reason
 
 
-# -- frames that tell the truth -----------------------------------------------------------------
+# -- frames that tell the truth ----------------------------------------------------------------
 def test_a_level_trim_gives_the_levelled_frame(tmp_path, rig_factory):  # noqa: F811
     path = tmp_path / 'calibration.yaml'
     cal = identity_calibration()
@@ -186,7 +188,7 @@ def test_without_a_trim_the_raw_frame_passes(tmp_path, rig_factory):  # noqa: F8
     assert {m.header.frame_id for m in got} == {'imu_link'}
 
 
-# -- one node per process ------------------------------------------------------------------------
+# -- one node per process -----------------------------------------------------------------------
 def test_remapped_node_name_names_exactly_one_node(tmp_path):
     path = tmp_path / 'calibration.yaml'
     save_calibration(identity_calibration(), path)
@@ -241,3 +243,89 @@ def test_a_frame_id_tf2_would_refuse_is_refused(tmp_path, rig_factory):  # noqa:
         (r,) = rig.node.set_parameters([Parameter('level_frame_id', value=value)])
         assert not r.successful and ('level_frame_id' in r.reason or 'type' in r.reason), value
     assert rig.node.params['level_frame_id'] == ''
+
+
+# -- never silently off, a frozen sensor, a clock that steps --------------------------------
+def _statuses(rig):
+    return {s.name: s for s in rig.last_diagnostics()}
+
+
+def test_a_frozen_sensor_is_an_error_in_diagnostics_and_on_health(tmp_path, rig_factory):  # noqa
+    path = tmp_path / 'calibration.yaml'
+    save_calibration(identity_calibration(), path)
+    rig = rig_factory(path)
+    rng = np.random.default_rng(7)
+    messages = still_messages(rng, 250, 100.0)
+    frozen = messages[100]
+    for m in messages[100:]:                         # the driver repeats one reading
+        m.linear_acceleration = frozen.linear_acceleration
+        m.angular_velocity = frozen.angular_velocity
+    stream(rig, messages)
+    rig.spin_until(lambda: rig.node.monitor.monitor.fault is not None)
+    statuses = _statuses(rig)
+    for part in ('gyro bias at rest', 'calibration health'):
+        status = statuses[f'accel_correction: {part}']
+        assert status.level == DiagnosticStatus.ERROR and 'frozen' in status.message
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    got = []
+    rig.peer.create_subscription(String, '/accel_correction/health', got.append, latched)
+    rig.spin_until(lambda: got and json.loads(got[-1].data)['level'] == 'error')
+    body = json.loads(got[-1].data)
+    assert body['healthy'] is False and body['sensor_fault']['kind'] == 'frozen'
+
+
+def test_no_still_period_for_the_stated_time_is_a_warning(tmp_path, rig_factory):  # noqa: F811
+    path = tmp_path / 'calibration.yaml'
+    save_calibration(identity_calibration(), path)
+    rig = rig_factory(path)
+    (ok,) = rig.node.set_parameters([Parameter('still_timeout_s', value=1.0)])
+    assert ok.successful, ok.reason
+    rng = np.random.default_rng(8)
+    moving = still_messages(rng, 250, 100.0)
+    for m in moving:                                 # shaken: never still
+        m.linear_acceleration.x = float(rng.normal(0.0, 2.0))
+    stream(rig, moving)
+    statuses = _statuses(rig)
+    for part in ('gyro bias at rest', 'calibration health'):
+        status = statuses[f'accel_correction: {part}']
+        assert status.level == DiagnosticStatus.WARN, status.message
+        assert 'no still period for' in status.message and 'accelerating' in status.message
+
+
+def test_a_clock_that_steps_back_restarts_the_monitor(tmp_path, rig_factory):  # noqa: F811
+    path = tmp_path / 'calibration.yaml'
+    save_calibration(identity_calibration(), path)
+    rig = rig_factory(path)
+    rng = np.random.default_rng(9)
+    bias = (0.004, -0.003, 0.002)
+    stream(rig, still_messages(rng, 200, 100.0, bias=bias))
+    stream(rig, still_messages(rng, 300, 40.0, bias=bias))      # a re-plug: 60 s back
+    mon = rig.node.monitor.monitor
+    assert mon.cutter.steps >= 1 and mon.cutter.backwards >= 1
+    assert mon.gyro.updates >= 1                                # still working after it
+    values = {v.key: v.value for v in
+              _statuses(rig)['accel_correction: gyro bias at rest'].values}
+    assert int(values['clock_steps']) >= 1
+
+
+def test_only_the_monitor_parameters_reach_the_monitor(tmp_path, rig_factory,  # noqa: F811
+                                                       monkeypatch):
+    rig = rig_factory(tmp_path / 'missing.yaml')
+    calls = []
+    monkeypatch.setattr(rig.node.monitor, 'apply', calls.append)
+    (ok,) = rig.node.set_parameters([Parameter('level_duration_s', value=3.0)])
+    assert ok.successful and calls == []
+    (ok,) = rig.node.set_parameters([Parameter('health_false_alarm', value=1e-5)])
+    assert ok.successful and calls == [{'health_false_alarm': 1e-5}]
+
+
+def test_a_stream_that_stops_is_a_warning_too(tmp_path, rig_factory):  # noqa: F811
+    path = tmp_path / 'calibration.yaml'
+    save_calibration(identity_calibration(), path)
+    rig = rig_factory(path)
+    (ok,) = rig.node.set_parameters([Parameter('still_timeout_s', value=1.0)])
+    assert ok.successful, ok.reason
+    rig.spin(1.2)
+    status = _statuses(rig)['accel_correction: calibration health']
+    assert status.level == DiagnosticStatus.WARN and 'no imu/data_raw for' in status.message

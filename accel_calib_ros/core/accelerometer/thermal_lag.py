@@ -24,11 +24,11 @@ import math
 
 import numpy as np
 
-GAP_S = 30.0
+LAG_GAP_S = 30.0
 """A temperature gap longer than this restarts the lag, s (the state is then unknown)."""
 
 
-def lagged_temperature(time, temp, tau_s, gap_s=GAP_S, start_gradient=0.0):
+def lagged_temperature(time, temp, tau_s, gap_s=LAG_GAP_S, start_gradient=0.0):
     """
     Return the first-order lag of a temperature series, same shape as ``temp``.
 
@@ -104,7 +104,7 @@ class LagState:
 
     __slots__ = ('tau_s', 'gap_s', 'time', 'temp', 'lag', 'restarts')
 
-    def __init__(self, tau_s, gap_s=GAP_S):
+    def __init__(self, tau_s, gap_s=LAG_GAP_S):
         self.tau_s, self.gap_s = float(tau_s), float(gap_s)
         self.time = self.temp = self.lag = None
         self.restarts = 0
@@ -145,7 +145,7 @@ class LagStream:
     a gap longer than ``gap_s`` lies between them. ``restarts`` counts the gaps.
     """
 
-    def __init__(self, tau_s, gap_s=GAP_S):
+    def __init__(self, tau_s, gap_s=LAG_GAP_S):
         self.tau_s, self.gap_s = float(tau_s), float(gap_s)
         self.last = None            # (time, temp, lag) of the last finite reading
         self.restarts = 0
@@ -193,11 +193,11 @@ class Hysteresis:
         self.tau_s = None if self.tau_s is None else float(self.tau_s)
         self.offset_per_c = np.asarray(self.offset_per_c, float).reshape(3).copy()
 
-    def offset(self, time, temp, gap_s=GAP_S):
+    def offset(self, time, temp, gap_s=LAG_GAP_S):
         """Return what the term adds to the readings, (N, 3) m/s², at ``temp`` and ``time``."""
         return np.outer(self.gradient(time, temp, gap_s), self.offset_per_c)
 
-    def gradient(self, time, temp, gap_s=GAP_S):
+    def gradient(self, time, temp, gap_s=LAG_GAP_S):
         """Return θ - θ_lag (N,) °C; 0 where the temperature is unknown."""
         temp = np.asarray(temp, float)
         ok = np.isfinite(temp) & np.isfinite(time)
@@ -215,7 +215,7 @@ class Hysteresis:
         """Plain YAML-ready mapping."""
         return {'effect': self.effect, 'tau_s': self.tau_s,
                 'offset_per_c_m_s2': [float(v) for v in self.offset_per_c],
-                'gap_s': GAP_S,
+                'gap_s': LAG_GAP_S,
                 'model': 'offset_i += offset_per_c_m_s2[i] (T - T_lag), tau_s dT_lag/dt = '
                          'T - T_lag (restarts when the temperature is silent for gap_s)'}
 

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .thermal import _basis, ThermalBand, ThermalTable
-from .thermal_lag import GAP_S, Hysteresis, lagged_temperature
+from .thermal_lag import Hysteresis, LAG_GAP_S, lagged_temperature
 
 MIN_BINS_PER_BAND = 3
 """A band needs at least this many bins for a node."""
@@ -211,8 +211,8 @@ def gradient_of(rec, tau_s):
     """Return the heating/cooling gradient θ - θ_lag per bin of a still recording, °C."""
     bins = rec.bins
     return bins.temp - lagged_temperature(bins.t_mid, bins.temp, tau_s,
-                                          gap_s=max(GAP_S, 1.5 * np.median(np.diff(
-                                              bins.t_mid)) if len(bins.t_mid) > 1 else GAP_S))
+                                          gap_s=max(LAG_GAP_S, 1.5 * np.median(np.diff(
+                                              bins.t_mid)) if len(bins.t_mid) > 1 else LAG_GAP_S))
 
 
 def hysteresis_tau(rec, reference_c, band_width_c, grid=12):

@@ -16,7 +16,7 @@ what to record when it is not there:
 - a sensor that stays put: a bin whose samples scatter far beyond the recording's own
   noise, or whose gyro turns, is left out (a knock); a step of the mean between bins that
   no temperature change can make starts a new pose (each pose gets its own constant);
-  more than ``MAX_POSES`` poses, or most of the recording moving, is refused.
+  more than ``MAX_STILL_POSES`` poses, or most of the recording moving, is refused.
 """
 
 from dataclasses import dataclass, field
@@ -32,7 +32,7 @@ BIN_S = 10.0
 MIN_SAMPLES_PER_BIN = 3
 """A bin needs at least this many samples (longer bins at rates below 0.3 Hz)."""
 
-MIN_SPAN_C = 5.0
+MIN_THERMAL_SPAN_C = 5.0
 """Smallest temperature span a thermal fit takes, °C."""
 
 MAX_TEMP_STEP_C = 2.0
@@ -58,7 +58,7 @@ TURN_DEG_S = 0.5
 TURN_BINS = 11
 """Bins over which the gyro's own slow drift is followed (a running median)."""
 
-MAX_POSES = 6
+MAX_STILL_POSES = 6
 """Most poses (still stretches between moves) a thermal recording may hold."""
 
 MAX_MOVING_SHARE = 0.3
@@ -214,7 +214,7 @@ def _rate(t):
     return 1.0 / float(np.median(dt[dt > 0])) if np.any(dt > 0) else 1.0
 
 
-def still_bins(samples, bin_s=BIN_S, min_span_c=MIN_SPAN_C, gap_s=None):
+def still_bins(samples, bin_s=BIN_S, min_span_c=MIN_THERMAL_SPAN_C, gap_s=None):
     """
     Reduce a still recording with temperature to bins, and check it can carry a thermal fit.
 
@@ -239,7 +239,7 @@ def still_bins(samples, bin_s=BIN_S, min_span_c=MIN_SPAN_C, gap_s=None):
     return still_recording(raw, min_span_c, Samples(t, accel, temp, gyro))
 
 
-def still_recording(raw, min_span_c=MIN_SPAN_C, samples=None):
+def still_recording(raw, min_span_c=MIN_THERMAL_SPAN_C, samples=None):
     """
     Check binned data can carry a thermal fit: the temperature, the moves, the span.
 
@@ -254,7 +254,7 @@ def still_recording(raw, min_span_c=MIN_SPAN_C, samples=None):
     keep, dropped = _knocks(bins, full)
     pose, moves = _poses(bins, keep, raw.segment)
     share = 1.0 - keep.sum() / max(full.sum(), 1)
-    if not keep.any() or pose.max() + 1 > MAX_POSES or share > MAX_MOVING_SHARE:
+    if not keep.any() or pose.max() + 1 > MAX_STILL_POSES or share > MAX_MOVING_SHARE:
         when = ', '.join(f'{m:.0f} s' for m in moves[:5])
         raise CalibrationError(
             f'the sensor moved during the recording ({len(moves)} moves'
@@ -385,7 +385,7 @@ class StillBinner:
         out.skipped_rows = self.skipped
         return out
 
-    def recording(self, min_span_c=MIN_SPAN_C):
+    def recording(self, min_span_c=MIN_THERMAL_SPAN_C):
         """Return the checked StillRecording of the bins so far (CalibrationError if not)."""
         raw = self.raw()
         if raw is None or len(raw.bins) < 2:

@@ -14,11 +14,13 @@ from .offline import DEFAULTS, still_runs
 from ..constants import G0
 
 
-class _FloorHistogram:
+class FloorHistogram:
     """
     Running low quantile of a positive quantity, in bounded memory (a log histogram).
 
-    100 bins per decade from 1e-9 to 1e3: the quantile is known to about 1 %.
+    100 bins per decade from 1e-9 to 1e3: the quantile is known to about 1 %. Shared
+    with the field monitor's still test (``core.monitor.still``), which forgets old
+    values with :meth:`decay`.
     """
 
     LOW, DECADES, PER_DECADE = -9.0, 12, 100
@@ -37,6 +39,11 @@ class _FloorHistogram:
         idx = np.clip(pos, 0, len(self.counts) - 1).astype(np.int64)
         self.counts += np.bincount(idx, minlength=len(self.counts))
         self.total += len(v)
+
+    def decay(self, factor=0.5):
+        """Weigh everything counted so far by ``factor`` (0..1): old values fade out."""
+        self.counts = np.floor(self.counts * float(factor)).astype(np.int64)
+        self.total = int(self.counts.sum())
 
     def quantile(self, q):
         """Return the ``q`` quantile of everything added (NaN before any value)."""
@@ -145,14 +152,14 @@ class OnlineStaticDetector:
         self.max_rotation = max_rotation_rad_s if use_gyro and max_rotation_rad_s \
             and np.isfinite(max_rotation_rad_s) else None
         self._gyro_hist = _MedianHistogram()
-        self._spin_hist = _FloorHistogram()     # rotation rate of the still samples
+        self._spin_hist = FloorHistogram()     # rotation rate of the still samples
         self.dropped = deque(maxlen=100)
         self.warmup_s = warmup_s
         self._seen = 0                  # samples with a moving std so far
         self.min_floor = 1e-5 * gravity
         self._dt = deque(maxlen=max(int(rate_memory), 8))
         self._last_t = None
-        self._acc_hist = _FloorHistogram()
+        self._acc_hist = FloorHistogram()
         self._ready = deque()
         self.rate_tolerance = 0.005
         self.rate_hz = None
