@@ -386,7 +386,7 @@ def load_csv(path, on_read=None, time_unit='s'):
     except OSError as exc:
         raise InputError(f'{path}: cannot read the file ({exc.strerror or exc})') from None
     samples = _checked_samples(path, seconds(columns, time_unit), lines, header_lineno)
-    check_time_spacing(path, samples.t, time_unit)
+    check_time_spacing(path, samples.t, time_unit, samples.temp)
     return samples
 
 
@@ -411,7 +411,7 @@ def iter_csv(path, chunk_rows, on_read=None, time_unit='s', non_finite='refuse')
                     piece = _checked_samples(path, columns, None, header_lineno, offset,
                                              t_before, non_finite)
                     if offset == 0:
-                        check_time_spacing(path, piece.t, time_unit)
+                        check_time_spacing(path, piece.t, time_unit, piece.temp)
                     offset += len(piece)
                     t_before = _last_time(piece.t, t_before)
                     yield piece
@@ -425,7 +425,7 @@ def iter_csv(path, chunk_rows, on_read=None, time_unit='s', non_finite='refuse')
             columns, lines = _parse_careful(path, header_lineno, layout, names, non_finite)
             whole = _checked_samples(path, seconds(columns, time_unit), lines, header_lineno,
                                      non_finite=non_finite)
-            check_time_spacing(path, whole.t, time_unit)
+            check_time_spacing(path, whole.t, time_unit, whole.temp)
             for a in range(0, len(whole), chunk_rows):
                 yield whole.subset(slice(a, a + chunk_rows))
     except UnicodeDecodeError:

@@ -2,7 +2,8 @@
 Time columns in any unit: ``--time-unit {s,ms,us,ns}``, and the check for the wrong one.
 
 A time spacing that no IMU has (a rate outside 1 Hz .. 100 kHz) is refused with the
-unit that would make it plausible.
+unit that would make it plausible; a temperature logger's averaged output down to 0.1 Hz is
+taken when its own temperature says it is one (``slow_logger``).
 """
 
 from ..core.errors import InputError
@@ -22,6 +23,15 @@ PLAUSIBLE_RATE_HZ = (1.0, 100_000.0)
 
 _TYPICAL_RATE_HZ = 200.0
 
+SLOW_LOGGER_HZ = 0.1
+"""Slowest rate taken from a temperature logger (``slow_logger``), Hz."""
+
+MIN_LOGGER_SPAN_C = 2.0
+"""A slow logger's temperature must move this much, °C, to vouch for its time unit."""
+
+IMPOSSIBLE_HEATING_C_MIN = 100.0
+"""No IMU's temperature changes this fast, °C/min: a time unit that says so is wrong."""
+
 
 def seconds(columns, unit):
     """
@@ -40,7 +50,29 @@ def seconds(columns, unit):
     return columns
 
 
-def check_time_spacing(path, t, unit='s'):
+def slow_logger(t, temp):
+    """
+    Tell whether a recording slower than 1 Hz is a temperature logger's, by its temperature.
+
+    A fast IMU stamped in milliseconds and read as seconds also looks slower than 1 Hz; but
+    a temperature that moves by ``MIN_LOGGER_SPAN_C`` or more would then have moved faster
+    than ``IMPOSSIBLE_HEATING_C_MIN`` in the recording's true (1000 times shorter) time:
+    only seconds make it plausible.
+
+    :param t: (N,) times in seconds. :param temp: (N,) °C or None.
+    """
+    import numpy as np
+    if temp is None:
+        return False
+    finite = np.isfinite(temp)
+    if finite.sum() < 2 or t[-1] <= t[0]:
+        return False
+    span = float(np.ptp(temp[finite]))
+    as_milliseconds = span / ((t[-1] - t[0]) * 1e-3) * 60.0
+    return span >= MIN_LOGGER_SPAN_C and as_milliseconds > IMPOSSIBLE_HEATING_C_MIN
+
+
+def check_time_spacing(path, t, unit='s', temp=None):
     """
     Refuse a time column whose spacing no IMU has: it is in another unit than said.
 
@@ -53,6 +85,8 @@ def check_time_spacing(path, t, unit='s'):
     :param path: the file, for the message.
     :param t: (N,) times in seconds (already converted from ``unit``), increasing.
     :param unit: the unit the file's numbers were read in.
+    :param temp: (N,) the temperature column, °C, or None: a logger between
+        ``SLOW_LOGGER_HZ`` and 1 Hz is taken when it vouches for its unit (``slow_logger``).
     :raises InputError: the rate is not an IMU's.
     """
     import numpy as np
@@ -66,6 +100,8 @@ def check_time_spacing(path, t, unit='s'):
     step = median(step)
     rate = 1.0 / step
     if low <= rate <= high or low <= mean_rate <= high:    # coarse stamps, or a long gap
+        return
+    if SLOW_LOGGER_HZ <= rate < low and slow_logger(t, temp):   # a temperature logger
         return
     given = step / TIME_UNITS[unit]           # the step in the file's own numbers
     fits = [(abs(np.log10(1.0 / (given * scale) / _TYPICAL_RATE_HZ)), u)

@@ -142,21 +142,27 @@ def test_without_a_temperature_column_or_a_calibration(capsys, cycles, tmp_path)
     assert code == 2 and '--thermal' in err
 
 
-def test_a_logger_s_averaged_output_at_one_hertz(capsys, cycles, tmp_path):
+@pytest.mark.parametrize('every', [5, 10])
+def test_a_logger_s_averaged_output_at_one_hertz_and_slower(capsys, cycles, tmp_path, every):
     folder, sims = cycles
     s = load_samples(str(folder / 'hyst_leg2.csv'))
-    n = len(s.t) // 5 * 5
+    n = len(s.t) // every * every
 
     def mean(x):
-        return x[:n].reshape(-1, 5, *x.shape[1:]).mean(axis=1)
+        return x[:n].reshape(-1, every, *x.shape[1:]).mean(axis=1)
     logger = tmp_path / 'logger.csv'
     write_samples_csv(str(logger), type(s)(mean(s.t), mean(s.accel), mean(s.temp)))
     code, out, err = run(capsys, 'fit', logger, '--thermal', '--calibration',
                          folder / 'hyst_cal.yaml', '-o', tmp_path / 'o.yaml', '--json')
     assert code == 0, err
     summary = json.loads(out)
-    assert summary['rate_hz'] == pytest.approx(1.0, rel=0.01)
+    assert summary['rate_hz'] == pytest.approx(5.0 / every, rel=0.01)
     assert summary['hysteresis'] is not None
+    # Without its temperature, a recording slower than 1 Hz is taken for milliseconds.
+    bare = tmp_path / 'bare.csv'
+    write_samples_csv(str(bare), type(s)(mean(s.t), mean(s.accel)))
+    code, _, err = run(capsys, 'fit', bare)
+    assert (code == 2 and 'not an IMU rate' in err) if every == 10 else code != 2
 
 
 def test_apply_says_when_the_data_leave_the_calibrated_range(capsys, cycles, tmp_path):
