@@ -28,10 +28,6 @@ from .model import Fit
 from .setfit import SessionFits, SetFit
 from ..core.accelerometer.thermal_pose import _legs, StillDesign
 
-HYSTERESIS_EFFECTS = ('temperature_rate', 'temperature_lag')
-"""The library effects that make heating and cooling read differently (carried to the robot
-as ``core.accelerometer.thermal_lag.Hysteresis``)."""
-
 
 class StillConditions:
     """

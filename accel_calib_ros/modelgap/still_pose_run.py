@@ -13,7 +13,7 @@ import numpy as np
 
 from .effects import EFFECTS
 from .result import DiagnoseResult, MIN_EFFECT_MG
-from .still_pose import HYSTERESIS_EFFECTS, StillConditions, StillFits, StillModel
+from .still_pose import StillConditions, StillFits, StillModel
 
 
 @dataclass
@@ -70,14 +70,15 @@ class StillResult(DiagnoseResult):
         """
         Return the heating/cooling term a thermal fit carries (``Hysteresis``), or None.
 
-        The first named effect of ``HYSTERESIS_EFFECTS``: the thermal fit carries it in the
+        The first named effect that turns with the heating (``Effect.heating``: a gradient,
+        a die's lag): the thermal fit carries it in the
         gradient form (the offset per °C of θ - θ_lag), its time constant and per-axis
         coefficients fitted to the data in that form (a die lag named here is carried as
         the gradient that imitates it best).
         """
         from ..core.accelerometer.thermal_lag import Hysteresis
         for step in self.steps:
-            if step['effect'] in HYSTERESIS_EFFECTS:
+            if step['effect'] in self.hysteresis_named():
                 return Hysteresis(None, np.zeros(3), step['effect'])
         return None
 
@@ -92,8 +93,7 @@ class StillResult(DiagnoseResult):
                    poses=int(c.rec.pose.max()) + 1,
                    heating_bins=int((c.legs > 0).sum()), cooling_bins=int((c.legs < 0).sum()),
                    held_out_legs=self.held_out or {},
-                   hysteresis_named=[s['effect'] for s in self.steps
-                                     if s['effect'] in HYSTERESIS_EFFECTS])
+                   hysteresis_named=self.hysteresis_named())
         return out
 
     def text(self):
@@ -106,6 +106,12 @@ class StillResult(DiagnoseResult):
                          + ' '.join(f'{v:.2f}' for v in before['rms_mg']) + ' -> '
                          + ' '.join(f'{v:.2f}' for v in after['rms_mg']))
         return '\n'.join(lines)
+
+    def hysteresis_named(self):
+        """Return the named effects that turn with the heating, in the order named."""
+        final = self.final_set
+        return [s['effect'] for s in self.steps
+                if final is not None and final.bound[s['effect']].heating]
 
     def rest_words(self):
         return ('a scatter from bin to bin beyond the noise inside the bins (bias instability, '
