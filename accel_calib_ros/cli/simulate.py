@@ -156,8 +156,6 @@ def imu_truth(sensor, earth_field):
 
 def run(args, out):
     """Run ``accel-calib simulate``; return the exit status."""
-    from .progress import Progress
-    from ..dataio.recording import write_bag, write_samples_csv
     from ..sim import motion as sim_motion
     from ..sim import sensor as sim
     if args.output == STDOUT and args.json:
@@ -214,21 +212,9 @@ def run(args, out):
     earth_field = sim.EarthField(args.field, args.dip)
     kwargs = {'hold_s': args.hold, 'move_s': args.move, 'rate_hz': args.rate}
     total = sim_motion.session_length(directions, **kwargs)
-    last_t = []
-
-    def pieces(bar):        # streamed: one piece of the session in memory at a time
-        for piece in sim_motion.iter_session(sensor, directions, rng, gravity=args.gravity,
-                                             temperature=temperature, earth_field=earth_field,
-                                             tremor_deg=args.tremor, **kwargs):
-            bar.update(len(piece.samples))
-            last_t[:] = [float(piece.samples.t[-1])]
-            yield piece.samples
-
-    with Progress(total, 'simulate') as bar:
-        if args.output.lower().endswith(('.mcap', '.db3')):
-            write_bag(args.output, pieces(bar))
-        else:
-            write_samples_csv(args.output, pieces(bar))
+    last_t = _write(args.output, total, sim_motion.iter_session(
+        sensor, directions, rng, gravity=args.gravity, temperature=temperature,
+        earth_field=earth_field, tremor_deg=args.tremor, **kwargs))
     truth = sensor_to_dict(sensor, args.gravity)
     if imu:
         truth.update(imu_truth(sensor, earth_field))
@@ -281,8 +267,6 @@ def sensor_to_dict(sensor, gravity):
 
 def _run_chamber(args, out, rng):
     """Simulate one still pose in a chamber cycle (``--chamber``), streamed to the output."""
-    from .progress import Progress
-    from ..dataio.recording import write_bag, write_samples_csv
     from ..sim import motion as sim_motion
     sensor, programme, direction = _chamber(args, rng)
     total = int(round(programme.duration_s * args.rate))
@@ -290,22 +274,9 @@ def _run_chamber(args, out, rng):
         raise UsageError(f'accel-calib: that chamber cycle would have {total:.3g} samples; the '
                          f'limit is {MAX_SIMULATED_SAMPLES:.3g} (a lower --rate, shorter holds '
                          'or faster ramps)')
-    last_t = []
-
-    def pieces(bar):
-        for piece in sim_motion.iter_session(sensor, direction[None, :], rng,
-                                             hold_s=programme.duration_s, rate_hz=args.rate,
-                                             gravity=args.gravity, temperature=programme,
-                                             lead_s=0.0):
-            bar.update(len(piece.samples))
-            last_t[:] = [float(piece.samples.t[-1])]
-            yield piece.samples
-
-    with Progress(total, 'simulate') as bar:
-        if args.output.lower().endswith(('.mcap', '.db3')):
-            write_bag(args.output, pieces(bar))
-        else:
-            write_samples_csv(args.output, pieces(bar))
+    last_t = _write(args.output, total, sim_motion.iter_session(
+        sensor, direction[None, :], rng, hold_s=programme.duration_s, rate_hz=args.rate,
+        gravity=args.gravity, temperature=programme, lead_s=0.0))
     truth = sensor_to_dict(sensor, args.gravity)
     truth['chamber'] = {'set_points_c': list(args.chamber), 'start_c': args.temp[0],
                         'rates_c_per_min': list(args.chamber_rate),
@@ -327,3 +298,27 @@ def _run_chamber(args, out, rng):
               f'{"standard output" if args.output == STDOUT else args.output}',
               file=sys.stderr if args.output == STDOUT else sys.stdout)
     return 0
+
+
+def _write(output, total, pieces):
+    """
+    Stream simulated session pieces to ``output`` (CSV, or a bag by its suffix), with a bar.
+
+    One piece in memory at a time; return [the last sample's time, s].
+    """
+    from .progress import Progress
+    from ..dataio.recording import write_bag, write_samples_csv
+    last_t = []
+
+    def samples(bar):
+        for piece in pieces:
+            bar.update(len(piece.samples))
+            last_t[:] = [float(piece.samples.t[-1])]
+            yield piece.samples
+
+    with Progress(total, 'simulate') as bar:
+        if output.lower().endswith(('.mcap', '.db3')):
+            write_bag(output, samples(bar))
+        else:
+            write_samples_csv(output, samples(bar))
+    return last_t

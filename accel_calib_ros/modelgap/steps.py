@@ -61,3 +61,23 @@ def record_steps(result, chosen):
     if result.selection is not None:
         result.ambiguities, result.alternatives = ambiguity_notes(result.selection, chosen, c)
     return chosen
+
+
+def select_into(result, fits, candidates, max_steps):
+    """
+    Run the one selection over ``candidates`` and record it in ``result`` (any geometry).
+
+    Sets ``session_fits``, ``tested``, ``selection``, the steps (``record_steps``), the last
+    round's ``candidates``, those ``below_threshold`` and the ``vetoed``.
+    """
+    from .selection import select, Selection
+    result.session_fits = fits
+    result.tested = candidates
+    selection = select(fits, candidates, max_steps) if max_steps > 0 else Selection()
+    result.selection = selection
+    record_steps(result, selection.chosen)
+    result.candidates = selection.candidates
+    result.below_threshold = [cand for cand in result.candidates
+                              if cand['significant'] and not cand['large_enough']]
+    result.vetoed = list(selection.vetoed)
+    return selection

@@ -134,6 +134,22 @@ class StillModel:
         r = y - X @ x
         return x, float(r @ r), -X
 
+    def fit_rows(self, rows):
+        """
+        Return the parameters fitted to some bins only (``rows``: (N,) bool), the rest zero.
+
+        A parameter those bins cannot show (a pose they do not hold) stays zero.
+        """
+        c = self.c
+        X = self.matrix()
+        s = c.flat_sigma
+        flat = np.tile(rows, 3)
+        keep = np.any(X[flat] != 0, axis=0)
+        x = np.zeros(X.shape[1])
+        x[keep] = np.linalg.lstsq(X[flat][:, keep] / s[flat, None],
+                                  c.flat_readings[flat] / s[flat], rcond=None)[0]
+        return x
+
     def residuals(self, x, c):
         return (c.flat_readings - self.matrix() @ x) / c.flat_sigma
 

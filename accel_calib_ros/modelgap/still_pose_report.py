@@ -98,14 +98,8 @@ def _held_out_figure(path, result):
                                    (result.fits[-1].effects, 'tab:green',
                                     '+ ' + ', '.join(result.missing_effects) or 'baseline')):
         model = StillModel(c, effects)
-        X = model.matrix()
-        s = c.flat_sigma
-        rows = np.tile(train, 3)
-        keep = np.any(X[rows] != 0, axis=0)
-        x = np.zeros(X.shape[1])
-        x[keep] = np.linalg.lstsq(X[rows][:, keep] / s[rows, None],
-                                  c.flat_readings[rows] / s[rows], rcond=None)[0]
-        rest = (c.flat_readings - X @ x).reshape(3, -1).T[test] * mg
+        rest = (c.flat_readings - model.matrix() @ model.fit_rows(train)).reshape(3, -1).T[test] \
+            * mg
         for i, ax in enumerate(axes):
             ax.scatter(c.temp_abs[test], rest[:, i], s=6, color=colour, label=label)
     for i, ax in enumerate(axes):

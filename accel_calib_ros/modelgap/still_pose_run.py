@@ -145,8 +145,7 @@ def diagnose_still(rec, reference, reference_c, band_width_c, gravity=9.80665,
     :returns: StillResult.
     """
     from .noise import window_noise, WindowNoise
-    from .selection import select, Selection
-    from .steps import record_steps
+    from .steps import select_into
     noise = WindowNoise(np.ones(3), np.zeros(3), ['assumed white'] * 3)
     if samples is not None and getattr(rec, 'samples', None) is not None:
         noise = window_noise(rec.samples, rec.bins)
@@ -175,15 +174,7 @@ def diagnose_still(rec, reference, reference_c, band_width_c, gravity=9.80665,
             candidates.append(name)
     result = StillResult('still', len(c), c, [base.fit], skipped=skipped, window_noise=noise,
                          noise_std=rec.noise_std, threshold_mg=threshold)
-    result.session_fits = fits
-    result.tested = candidates
-    selection = select(fits, candidates, max_steps) if max_steps > 0 else Selection()
-    result.selection = selection
-    record_steps(result, selection.chosen)
-    result.candidates = selection.candidates
-    result.below_threshold = [cand for cand in result.candidates
-                              if cand['significant'] and not cand['large_enough']]
-    result.vetoed = list(selection.vetoed)
+    select_into(result, fits, candidates, max_steps)
     if power:
         _naming_power(result)
     result.held_out = held_out_legs(result)
@@ -231,14 +222,7 @@ def held_out_legs(result):
         entry = {'bins': int(test.sum())}
         for key, effects in sets.items():
             model = StillModel(c, effects)
-            X = model.matrix()
-            s = c.flat_sigma
-            rows = np.tile(train, 3)
-            keep = np.any(X[rows] != 0, axis=0)
-            x = np.zeros(X.shape[1])
-            x[keep] = np.linalg.lstsq(X[rows][:, keep] / s[rows, None],
-                                      c.flat_readings[rows] / s[rows], rcond=None)[0]
-            r = (c.flat_readings - X @ x).reshape(3, -1).T[test]
+            r = (c.flat_readings - model.matrix() @ model.fit_rows(train)).reshape(3, -1).T[test]
             for p in np.flatnonzero(~c.design.pose_cols[train].any(axis=0)):
                 mine = c.rec.pose[test] == p
                 r[mine] -= r[mine].mean(axis=0)

@@ -40,9 +40,8 @@ from .power import calibrate_power
 from .probes import residual_probes
 from .pruning import withdraw_projections, within_slow_noise
 from .result import DiagnoseResult, MIN_EFFECT_MG
-from .selection import select, Selection
 from .setfit import SessionFits
-from .steps import record_steps
+from .steps import select_into
 from ..core.accelerometer.fit import calibrate
 from ..core.errors import CalibrationError
 from ..core.windows import DEFAULTS, detect_static_windows, MAX_WEIGHT_S
@@ -148,15 +147,7 @@ def _search(windows, baseline, gravity, rate_hz, noise, min_effect_mg, max_steps
                             rate_hz=rate_hz, threshold_mg=threshold,
                             predicted_accuracy_mg=accuracy)
     result.still = still
-    result.session_fits = fits
-    result.tested = candidates
-    selection = select(fits, candidates, max_steps) if max_steps > 0 else Selection()
-    result.selection = selection
-    record_steps(result, selection.chosen)
-    result.candidates = selection.candidates
-    result.below_threshold = [cand for cand in result.candidates
-                              if cand['significant'] and not cand['large_enough']]
-    result.vetoed = list(selection.vetoed)
+    select_into(result, fits, candidates, max_steps)
     if result.steps and noise.coloured:
         within_slow_noise(result)
     final = result.final_set
