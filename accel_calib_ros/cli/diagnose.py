@@ -7,6 +7,9 @@ from .common import (add_data_args, add_window_args, check_output, GRAVITY, load
 from ..core.constants import G0
 
 REPORT_FILES = ('report.md', 'gap.png', 'probes.png')
+MAX_STILL_BINS = 1500
+"""A longer still recording is cut into longer bins for ``--calibration`` (about 1 GB of
+naming simulation at most; 10 s bins hold 4 hours)."""
 """Files ``--report`` writes (plus one ``residuals_stepK.png`` per model step)."""
 
 
@@ -105,6 +108,9 @@ def _diagnose_still(args):
     recorded_units(args, cal, 'diagnose --calibration')
     samples = load_data(args)
     rec = still_bins(samples, min_span_c=args.min_span)
+    if len(rec.bins) > MAX_STILL_BINS:       # the naming simulation grows with the bins
+        duration = float(rec.bins.t_mid[-1] - rec.bins.t_mid[0])
+        rec = still_bins(samples, bin_s=duration / MAX_STILL_BINS, min_span_c=args.min_span)
     reference_c, _ = reference_temperature(cal, rec)
     return diagnose_still(rec, cal, reference_c, args.band_width or STILL_BAND_WIDTH_C,
                           args.gravity, min_effect_mg=args.min_effect_mg, samples=samples)

@@ -106,13 +106,49 @@ def make_folds(time):
     return [np.sort(block) for block in np.array_split(order, CV_FOLDS)]
 
 
+class FoldMap:
+    """
+    The map (I - q qᵀ)⁻¹ = I + q (I - qᵀ q)⁻¹ qᵀ of one fold, applied without forming it.
+
+    ``r @ m`` (or ``r @ m.T``: it is symmetric) for rows ``r`` (R, b) costs O(R b p) and the
+    map O(b p) memory: a long still recording's folds hold hundreds of bins.
+    """
+
+    __slots__ = ('q', 'k')
+    __array_ufunc__ = None          # ndarray @ FoldMap defers to __rmatmul__
+
+    def __init__(self, q, k):
+        self.q, self.k = q, k
+
+    @property
+    def T(self):                    # noqa: N802 - numpy's name
+        return self
+
+    def __rmatmul__(self, r):
+        return r + (r @ self.q) @ self.k
+
+
+class NoMap:
+    """The map of a fold the others cannot predict: every held-out residual NaN."""
+
+    __array_ufunc__ = None
+
+    @property
+    def T(self):                    # noqa: N802 - numpy's name
+        return self
+
+    def __rmatmul__(self, r):
+        return np.full(np.shape(r), np.nan)
+
+
 def fold_maps(basis, folds):
     """
     Return, per fold, the map from a fitted residual to the held-out one, (I - H_BB)^-1.
 
     ``basis`` (N, p) orthonormal columns the model can fit (its Jacobian's span); H its
     hat matrix. For a linear model the residual of fold B predicted from the others is
-    (I - H_BB)^-1 r_B exactly; a fold the others cannot predict (H_BB near 1) gets NaN.
+    (I - H_BB)^-1 r_B exactly (a :class:`FoldMap`); a fold the others cannot predict (H_BB
+    near 1) gets None.
     """
     maps = []
     for block in folds:
@@ -126,9 +162,7 @@ def fold_maps(basis, folds):
         if least < 1e-6:
             maps.append(None)
         else:
-            m = q @ np.linalg.solve(np.eye(q.shape[1]) - gram, q.T)
-            m[np.diag_indices(len(block))] += 1.0
-            maps.append(m)
+            maps.append(FoldMap(q, np.linalg.solve(np.eye(q.shape[1]) - gram, q.T)))
     return maps
 
 

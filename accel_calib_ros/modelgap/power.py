@@ -29,7 +29,7 @@ import zlib
 
 import numpy as np
 
-from .criterion import (COLLINEAR, cv_folds, decide, evaluate, fold_maps, P_SUPPORT,
+from .criterion import (COLLINEAR, cv_folds, decide, evaluate, fold_maps, NoMap, P_SUPPORT,
                         RIVAL_BIC, support_stats, Trial)
 from .effects import EFFECTS, G0
 from .evidence import worst_case_mg
@@ -235,13 +235,11 @@ class Stack:
 
     @property
     def maps(self):
-        """Per fold, the held-out maps of every binding stacked, (B, b, b) (NaN: none)."""
+        """Per fold, the held-out map of every binding (``criterion.FoldMap``; NaN: none)."""
         if self._maps is None:
             per = [b.maps for b in self.options]
-            self._maps = [np.stack([m[f] if m[f] is not None
-                                    else np.full((len(block), len(block)), np.nan)
-                                    for m in per])
-                          for f, block in enumerate(self.options[0].design.folds)]
+            self._maps = [[m[f] if m[f] is not None else NoMap() for m in per]
+                          for f in range(len(self.options[0].design.folds))]
         return self._maps
 
 
@@ -325,7 +323,10 @@ def replay(design, y):
             part, cv[where], params, worst[where] = _evidence_of(stack, local, y[where],
                                                                  design.folds)
             signal[where] = part
-            reasons = effect.replay_veto(stack, params, chosen[where], design)
+            # The contradictions the selection heard, replayed (none where the session's
+            # fits hold no measurements: ``SessionFits.measured``, as on one still pose).
+            reasons = None if design.fits.measured is None else \
+                effect.replay_veto(stack, params, chosen[where], design)
             if reasons is not None:
                 veto[where] = reasons
         trials.append(Trial(name, effect.variable, k[pick], chosen,
