@@ -17,9 +17,12 @@ import pytest
 
 @pytest.fixture(scope='module')
 def big_csv(tmp_path_factory):
-    """Write a CSV that takes ``apply`` a few seconds (the signal lands mid-write)."""
+    """Write a CSV that takes ``apply`` a few seconds, so the signal lands mid-write.
+
+    About 2 s of writing, which a loaded 2-core machine needs (600 000 rows left 0.7 s).
+    """
     folder = tmp_path_factory.mktemp('signals')
-    n = 600_000
+    n = 1_500_000
     rng = np.random.default_rng(0)
     accel = rng.normal(0, 0.01, (n, 3)) + [0.0, 0.0, 9.80665]
     path = folder / 'big.csv'
