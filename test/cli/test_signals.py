@@ -17,7 +17,8 @@ import pytest
 
 @pytest.fixture(scope='module')
 def big_csv(tmp_path_factory):
-    """Write a CSV that takes ``apply`` a few seconds, so the signal lands mid-write.
+    """
+    Write a CSV that takes ``apply`` a few seconds, so the signal lands mid-write.
 
     About 2 s of writing, which a loaded 2-core machine needs (600 000 rows left 0.7 s).
     """

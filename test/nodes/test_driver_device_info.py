@@ -182,7 +182,7 @@ def test_reader_survives_an_exception_and_reports_it(rigs):
 
 def test_info_v2_recoveries_and_frame_version_in_diagnostics(rigs):
     """Firmware 2.x: frame version 2 and its recovery counters reach /diagnostics."""
-    rig = rigs()
+    rig = rigs(watchdog_s=10.0)     # the "device" pauses while the test waits for messages
     time.sleep(0.3)
     info = InfoFrame(0, 0x71, 4, 500, 1000, 1, 1_000_000, (2, 0), frame_version=2,
                      mag_status=0, info_version=2)
