@@ -32,10 +32,15 @@ def modules():
     return out
 
 
+def parse(path):
+    """Return the syntax tree of the Python file at ``path``."""
+    with open(path, encoding='utf-8') as f:
+        return ast.parse(f.read())
+
+
 def imports(name, path, known):
     """Return the package modules that the module called ``name`` imports, anywhere in it."""
-    with open(path, encoding='utf-8') as f:
-        tree = ast.parse(f.read())
+    tree = parse(path)
     package = name if path.endswith('__init__.py') else name.rsplit('.', 1)[0]
     found = set()
     for node in ast.walk(tree):
@@ -157,8 +162,7 @@ def constants():
     import re
     defined = {}
     for name, path in modules().items():
-        with open(path, encoding='utf-8') as f:
-            tree = ast.parse(f.read())
+        tree = parse(path)
         for node in tree.body:
             targets = node.targets if isinstance(node, ast.Assign) else \
                 [node.target] if isinstance(node, ast.AnnAssign) and node.value else []
@@ -185,8 +189,7 @@ def _rclpy_private_names():
         for file in files:
             if not file.endswith('.py'):
                 continue
-            with open(os.path.join(folder, file), encoding='utf-8') as f:
-                tree = ast.parse(f.read())
+            tree = parse(os.path.join(folder, file))
             for node in ast.walk(tree):
                 if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and \
                         node.value.id == 'self' and _private(node.attr):
@@ -205,8 +208,7 @@ def _our_names():
     """Return the names the package itself gives its objects (``self._x = ...``, ``def _x``)."""
     ours = set()
     for path in modules().values():
-        with open(path, encoding='utf-8') as f:
-            tree = ast.parse(f.read())
+        tree = parse(path)
         for node in ast.walk(tree):
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
                 ours.add(node.name)
@@ -225,8 +227,7 @@ def test_the_nodes_use_no_private_attribute_of_rclpy():
     for name, path in modules().items():
         if floor(name) != FLOORS['nodes'] or not name.startswith(f'{PACKAGE}.nodes'):
             continue
-        with open(path, encoding='utf-8') as f:
-            tree = ast.parse(f.read())
+        tree = parse(path)
         for node in ast.walk(tree):
             used = None
             if isinstance(node, ast.Attribute):
@@ -250,8 +251,7 @@ def test_the_guide_reads_the_port_through_the_link():
     known = modules()
     used = imports(f'{PACKAGE}.cli.guide_sources', path, known)
     assert f'{PACKAGE}.dataio.link' in used or f'{PACKAGE}.dataio.link.serial_link' in used
-    with open(path, encoding='utf-8') as f:
-        tree = ast.parse(f.read())
+    tree = parse(path)
     direct = [n.lineno for n in ast.walk(tree) if isinstance(n, (ast.Import, ast.ImportFrom))
               and any(a.name == 'serial' or a.name.startswith('serial.') for a in n.names)
               or isinstance(n, ast.ImportFrom) and (n.module or '').split('.')[0] == 'serial']

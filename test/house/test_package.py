@@ -13,6 +13,7 @@ import sys
 import xml.etree.ElementTree as ET
 
 import pytest
+from test_layout import parse
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 PACKAGE = 'accel_calib_ros'
@@ -45,9 +46,7 @@ def third_party_imports(folder):
         for name in files:
             if not name.endswith('.py'):
                 continue
-            with open(os.path.join(path, name), encoding='utf-8') as f:
-                tree = ast.parse(f.read())
-            for node in ast.walk(tree):
+            for node in ast.walk(parse(os.path.join(path, name))):
                 if isinstance(node, ast.Import):
                     found.update(a.name.split('.')[0] for a in node.names)
                 elif isinstance(node, ast.ImportFrom) and not node.level:

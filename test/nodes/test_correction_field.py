@@ -46,6 +46,16 @@ def still_messages(rng, n, t0, rate=100.0, bias=(0.0, 0.0, 0.0), frame='imu_link
     return out
 
 
+def latched_health(rig, level):
+    """Subscribe late to the latched health topic; return its JSON once it says ``level``."""
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    got = []
+    rig.peer.create_subscription(String, '/accel_correction/health', got.append, latched)
+    rig.spin_until(lambda: got and json.loads(got[-1].data)['level'] == level)
+    return json.loads(got[-1].data)
+
+
 def stream(rig, messages, rate=100.0):
     """Publish at real time (a best-effort queue is never outrun); wait for the output."""
     start = len(rig.received)
@@ -104,12 +114,7 @@ def test_health_is_latched_and_says_recalibrate(tmp_path, rig_factory):  # noqa:
     # A rest 10 s later confirms the first one was a rest (not a lift's plateau).
     stream(rig, still_messages(rng, 150, 112.0, gravity=(0.0, 0.0, G + 0.1)))
     rig.spin_until(lambda: rig.node.monitor.monitor.health.periods >= 1)
-    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-    got = []
-    rig.peer.create_subscription(String, '/accel_correction/health', got.append, latched)
-    rig.spin_until(lambda: got and json.loads(got[-1].data)['level'] == 'recalibrate')
-    body = json.loads(got[-1].data)
+    body = latched_health(rig, 'recalibrate')
     assert body['recalibrate'] and body['message'].startswith('recalibrate')
     assert body['disagreement_mg'] == pytest.approx(10.2, abs=1.0)
     statuses = {s.name: s for s in rig.last_diagnostics()}
@@ -266,12 +271,7 @@ def test_a_frozen_sensor_is_an_error_in_diagnostics_and_on_health(tmp_path, rig_
     for part in ('gyro bias at rest', 'calibration health'):
         status = statuses[f'accel_correction: {part}']
         assert status.level == DiagnosticStatus.ERROR and 'frozen' in status.message
-    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-    got = []
-    rig.peer.create_subscription(String, '/accel_correction/health', got.append, latched)
-    rig.spin_until(lambda: got and json.loads(got[-1].data)['level'] == 'error')
-    body = json.loads(got[-1].data)
+    body = latched_health(rig, 'error')
     assert body['healthy'] is False and body['sensor_fault']['kind'] == 'frozen'
 
 
