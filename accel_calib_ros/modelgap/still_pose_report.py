@@ -94,9 +94,11 @@ def _held_out_figure(path, result):
         return False
     train, test = c.legs > 0, c.legs < 0
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
-    for effects, colour, label in (([], 'tab:grey', 'baseline'),
-                                   (result.fits[-1].effects, 'tab:green',
-                                    '+ ' + ', '.join(result.missing_effects) or 'baseline')):
+    models = [([], 'tab:grey', 'baseline')]
+    if result.missing_effects:           # else the baseline alone (not drawn twice as "+ ")
+        models.append((result.fits[-1].effects, 'tab:green',
+                       '+ ' + ', '.join(result.missing_effects)))
+    for effects, colour, label in models:
         model = StillModel(c, effects)
         rest = (c.flat_readings - model.matrix() @ model.fit_rows(train)).reshape(3, -1).T[test] \
             * mg
