@@ -106,6 +106,27 @@ def unit_options(args):
     return {'units': units, 'counts_per_g': counts_per_g, 'counts_offset': offset}
 
 
+def mode_options(args, options, mode, active):
+    """
+    Fill in the options that act in one mode only; refuse them given outside it.
+
+    Such an option has the argparse default None, so that a value given by the user is
+    told from none (one the mode would then ignore in silence).
+
+    :param options: {option flag: its default in the mode}, e.g. ``{'--min-span': 5.0}``.
+    :param mode: the words that name the mode, e.g. ``'--chamber'``.
+    :param active: whether the mode is on.
+    :raises UsageError: an option was given and the mode is off.
+    """
+    for flag, default in options.items():
+        dest = flag.lstrip('-').replace('-', '_')
+        if getattr(args, dest) is None:
+            setattr(args, dest, default)
+        elif not active:
+            raise UsageError(f'accel-calib: {flag} acts only with {mode}; add it or leave '
+                             f'{flag} out')
+
+
 def to_si(samples, args, check=True):
     """Convert ``samples`` to m/s² as the unit options say (one refusal when implausible)."""
     from ..dataio.units import check_magnitude, to_si as convert

@@ -14,7 +14,7 @@ import time
 import numpy as np
 
 from .common import (add_data_args, add_window_args, check_output, GRAVITY, load_data,
-                     ranged, sensor_id, STDOUT, UsageError)
+                     mode_options, ranged, sensor_id, STDOUT, UsageError)
 from ..core.accelerometer.fit import METHODS
 from ..core.errors import CalibrationError
 from ..core.windows import DEFAULTS, detect_static_windows
@@ -44,9 +44,9 @@ def add_arguments(p):
                         'DATA is then one still pose while the temperature sweeps; the '
                         'output is CALIB plus offset tables against temperature (-o may be '
                         'CALIB itself)')
-    g.add_argument('--min-span', type=ranged(0.5, 200.0), default=5.0, metavar='C',
-                   help='smallest temperature span taken, °C (default %(default)s)')
-    g.add_argument('--hysteresis', choices=('auto', 'off'), default='auto',
+    g.add_argument('--min-span', type=ranged(0.5, 200.0), default=None, metavar='C',
+                   help='smallest temperature span taken, °C (default 5)')
+    g.add_argument('--hysteresis', choices=('auto', 'off'), default=None,
                    help='auto: carry the heating/cooling hysteresis term when the model-gap '
                         'selection names it (default); off: never')
     p.add_argument('--gravity', type=GRAVITY, default=S.gravity,
@@ -323,6 +323,9 @@ def run(args, out):
     from ..session.finish import finish_session
     from ..session.settings import FIT
     from ..session.windows import Observations, WindowSet
+    mode_options(args, {'--min-span': 5.0, '--hysteresis': 'auto'},
+                 '--thermal --calibration CALIB (one still pose)',
+                 args.calibration is not None)
     if args.calibration is not None:
         if not args.thermal:
             raise UsageError('accel-calib: fit --calibration is the calibration a thermal fit '

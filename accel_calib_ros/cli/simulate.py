@@ -5,12 +5,15 @@ import sys
 
 import numpy as np
 
-from .common import (check_output, check_suffix, GRAVITY, MAX_POSES, ranged, SEED, STDOUT,
-                     TEMPERATURE, UsageError)
+from .common import (check_output, check_suffix, GRAVITY, MAX_POSES, mode_options, ranged,
+                     SEED, STDOUT, TEMPERATURE, UsageError)
 from ..core.constants import G0
 
 
 MAX_SIMULATED_SAMPLES = 50_000_000
+CHAMBER_OPTIONS = {'--chamber-rate': [3.0], '--chamber-hold': 900.0, '--board-tau': 180.0,
+                   '--hysteresis': 0.0, '--up': 'z'}
+"""The options of ``--chamber`` only, with their defaults there."""
 
 
 def add_arguments(p):
@@ -63,19 +66,18 @@ def add_arguments(p):
                         '(e.g. -18 74 -18: cool, heat, cool again); the sensor, with '
                         'MPU-9250-like offsets against temperature (16, 15 and 55 mg over '
                         '-18..74 °C), is held still in one pose (--up)')
-    g.add_argument('--chamber-rate', type=ranged(0.01, 100.0), nargs='+', default=[3.0],
+    g.add_argument('--chamber-rate', type=ranged(0.01, 100.0), nargs='+', default=None,
                    metavar='C_PER_MIN', help='ramp rate to each set point, °C/min (one value '
                                              'or one per set point; default 3)')
-    g.add_argument('--chamber-hold', type=ranged(0.0, 1e5), default=900.0, metavar='S',
-                   help='hold at each set point, s (default %(default)s)')
-    g.add_argument('--board-tau', type=ranged(0.0, 1e5), default=180.0, metavar='S',
-                   help="the board's time constant behind the chamber air, s (default "
-                        '%(default)s)')
-    g.add_argument('--hysteresis', type=ranged(0.0, 1000.0), default=0.0, metavar='MG',
+    g.add_argument('--chamber-hold', type=ranged(0.0, 1e5), default=None, metavar='S',
+                   help='hold at each set point, s (default 900)')
+    g.add_argument('--board-tau', type=ranged(0.0, 1e5), default=None, metavar='S',
+                   help="the board's time constant behind the chamber air, s (default 180)")
+    g.add_argument('--hysteresis', type=ranged(0.0, 1000.0), default=None, metavar='MG',
                    help='heating minus cooling at the same temperature on the worst axis at '
                         'the ramp rate, mg (a temperature gradient across the package; '
                         'default 0)')
-    g.add_argument('--up', choices=('x', '-x', 'y', '-y', 'z', '-z'), default='z',
+    g.add_argument('--up', choices=('x', '-x', 'y', '-y', 'z', '-z'), default=None,
                    help='the axis that points up in the chamber (default z)')
     p.add_argument('--json', action='store_true', help='print one JSON object')
 
@@ -168,6 +170,7 @@ def run(args, out):
     check_output(args.output, args.noise_from, stdout=True)
     if args.output != STDOUT:
         check_suffix(args.output, ('.csv', '.mcap', '.db3'), 'simulate -o')
+    mode_options(args, CHAMBER_OPTIONS, '--chamber', bool(args.chamber))
     rng = np.random.default_rng(args.seed)
     if args.chamber:
         return _run_chamber(args, out, rng)

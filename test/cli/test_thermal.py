@@ -142,6 +142,22 @@ def test_without_a_temperature_column_or_a_calibration(capsys, cycles, tmp_path)
     assert code == 2 and '--thermal' in err
 
 
+@pytest.mark.parametrize('argv', [
+    ('fit', '{data}', '--min-span', '3', '-o', '{out}.yaml'),
+    ('fit', '{data}', '--thermal', '--hysteresis', 'off', '-o', '{out}.yaml'),
+    ('simulate', '--hysteresis', '5', '-o', '{out}.csv'),
+    ('simulate', '--board-tau', '30', '-o', '{out}.csv'),
+    ('simulate', '--up', 'x', '-o', '{out}.csv')])
+def test_an_option_of_the_other_mode_is_refused_not_ignored(capsys, cycles, tmp_path, argv):
+    """A chamber or one-pose option outside its mode would do nothing: one line, exit 2."""
+    folder, _ = cycles
+    out = tmp_path / 'o'
+    code, _, err = run(capsys, *(a.format(data=folder / 'hyst_leg1.csv', out=out) for a in argv))
+    flag = next(a for a in argv if a.startswith('--') and a != '--thermal')
+    assert code == 2 and err.count('\n') == 1 and f'{flag} acts only with' in err
+    assert not any(tmp_path.iterdir())
+
+
 @pytest.mark.parametrize('every', [5, 10])
 def test_a_logger_s_averaged_output_at_one_hertz_and_slower(capsys, cycles, tmp_path, every):
     folder, sims = cycles
