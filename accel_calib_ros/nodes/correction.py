@@ -26,7 +26,7 @@ from std_srvs.srv import Trigger
 from .correction_monitor import NodeMonitor, PARAMS as MONITOR_PARAMS
 from .level_frame import LevelFrame
 from .parameters import declare_parameters, Param, ParameterProblem
-from .paths import check_frame_id, hardware_id, sensor_files, status_name
+from .paths import check_frame_id, check_topic_name, hardware_id, sensor_files, status_name
 from .spinning import run
 from ..core.constants import TESLA_PER_UT
 from ..core.correction import (Corrector, UNCALIBRATED_COVARIANCE,  # noqa: F401 - re-exported
@@ -140,6 +140,7 @@ class CorrectionNode(Node):
         """Refuse a start-up value or a change the node cannot work with (no side effects)."""
         check_frame_id(proposed['frame_id'])
         check_frame_id(proposed['level_frame_id'], 'level_frame_id', empty_ok=True)
+        check_topic_name(proposed['stationary_topic'], 'stationary_topic')
         _, path = self._files(proposed)
         if changes is not proposed and set(changes) & {'calibration_file', 'frame_id',
                                                        'sensor_id'} \

@@ -74,6 +74,30 @@ def check_frame_id(value, name='frame_id', empty_ok=False):
                                f'printable), got {value!r}')
 
 
+def check_topic_name(value, name):
+    """
+    Refuse a topic name rclpy would not subscribe to ('' is allowed: no topic).
+
+    rclpy's own check passes a NUL (the C layer then cuts the name there): unprintable
+    characters are refused first.
+
+    :raises ParameterProblem: with the reason.
+    """
+    if not value:
+        return
+    from rclpy.exceptions import InvalidTopicNameException
+    from rclpy.validate_topic_name import validate_topic_name
+    if not value.isprintable():
+        raise ParameterProblem(f'parameter {name!r} must be a topic name (printable), got '
+                               f'{value!r}')
+    try:
+        validate_topic_name(value)
+    except InvalidTopicNameException as err:
+        reason = str(err).splitlines()[0].replace('Invalid topic name: ', '').rstrip(':')
+        raise ParameterProblem(f'parameter {name!r} must be a topic name ({reason}), got '
+                               f'{value!r}') from None
+
+
 def hardware_id(sensor):
     """
     Return the ``/diagnostics`` ``hardware_id`` of a sensor: its :func:`sensor_id`.

@@ -148,3 +148,17 @@ def test_correction_level_into_a_fifo_is_refused(make, tmp_path):
     response = node.on_level(Trigger.Request(), Trigger.Response())
     assert not response.success and 'FIFO' in response.message, response.message
     assert stat.S_ISFIFO(os.lstat(good).st_mode)
+
+
+def test_a_stationary_topic_rclpy_cannot_take_is_refused_with_the_reason(make, tmp_path):
+    """It was accepted, then failed to apply (logged, rolled back) or was cut at a NUL."""
+    from accel_calib_ros.nodes.correction import CorrectionNode
+    node = make(CorrectionNode, calibration_file=str(tmp_path / 'c.yaml'))
+    for bad in ('bad topic name', 'a\x00b', '1st'):
+        (r,) = node.set_parameters([Parameter('stationary_topic', value=bad)])
+        assert not r.successful and 'topic name' in r.reason, bad
+    assert node.params['stationary_topic'] == ''
+    (r,) = node.set_parameters([Parameter('stationary_topic', value='/robot1/stationary')])
+    assert r.successful, r.reason
+    with pytest.raises(ParameterProblem, match='stationary_topic'):
+        make(CorrectionNode, calibration_file=str(tmp_path / 'c.yaml'), stationary_topic='a b')
