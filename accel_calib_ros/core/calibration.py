@@ -281,7 +281,7 @@ class Calibration:
         """Return the temperature lag to carry across pieces of a recording, or None."""
         from .accelerometer.thermal_lag import LagStream
         h = self.hysteresis
-        return None if h is None else LagStream(h.tau_s)
+        return None if h is None else LagStream(h.tau_s, h.gap_s)
 
     def hysteresis_offset(self, time, temp, stream=None):
         """

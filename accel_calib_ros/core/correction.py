@@ -78,7 +78,7 @@ class Corrector:
         self.lag = None
         if h is not None:
             from .accelerometer.thermal_lag import LagState
-            self.lag = LagState(h.tau_s)
+            self.lag = LagState(h.tau_s, h.gap_s)
         self._hysteresis_offset = (0.0, 0.0, 0.0)
         self.cov_key = None         # incoming covariances last judged (bytes) ...
         self.wcov = None            # ... the angular-velocity covariance to publish for

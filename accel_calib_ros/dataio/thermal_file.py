@@ -2,7 +2,7 @@
 
 from .yaml_schema import _found, _mapping, _number, _optional, _string, _vector, Bad
 from ..core.accelerometer.thermal import ThermalBand, ThermalTable
-from ..core.accelerometer.thermal_lag import Hysteresis
+from ..core.accelerometer.thermal_lag import Hysteresis, LAG_GAP_S
 from ..core.calibration import MAX_GYRO_BIAS
 
 
@@ -66,4 +66,5 @@ def _hysteresis(value, gravity_raw):
     tau = _number(h.get('tau_s'), 'thermal.hysteresis.tau_s', 0.1, 1e6)
     k = _vector(h.get('offset_per_c_m_s2'), 'thermal.hysteresis.offset_per_c_m_s2', 3,
                 -0.1 * gravity_raw, 0.1 * gravity_raw)
-    return Hysteresis(tau, k, effect)
+    gap = _number(h.get('gap_s', LAG_GAP_S), 'thermal.hysteresis.gap_s', 1.0, 1e6)
+    return Hysteresis(tau, k, effect, gap)

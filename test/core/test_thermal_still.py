@@ -63,6 +63,26 @@ def test_stream_and_state_give_the_recording_s_lag_piece_by_piece():
     assert np.allclose(h.offset(t, x), np.outer(whole, [0.01, 0.0, -0.02]))
 
 
+def test_the_file_s_gap_is_the_one_the_lag_restarts_after(tmp_path):
+    """``thermal.hysteresis.gap_s`` was written but not read: an edit of it did nothing."""
+    from accel_calib_ros.core.accelerometer.thermal import ThermalTable
+    from accel_calib_ros.core.correction import Corrector
+    from accel_calib_ros.dataio.calibration_file import load_calibration, save_calibration
+    t = np.r_[np.arange(0.0, 200.0, 1.0), np.arange(245.0, 400.0, 1.0)]      # a 45 s pause
+    x = 20.0 + 0.05 * t
+    table = ThermalTable(5.0, [], 'linear', 25.0, (20.0, 45.0),
+                         Hysteresis(60.0, [0.01, 0.0, 0.0], gap_s=60.0), 'still')
+    save_calibration(Calibration(T=np.eye(3), bias=np.zeros(3), thermal=table,
+                                 temperature_range_c=(20.0, 45.0)), tmp_path / 'c.yaml')
+    cal = load_calibration(tmp_path / 'c.yaml')
+    assert cal.hysteresis.gap_s == 60.0
+    expected = x - lagged_temperature(t, x, 60.0, gap_s=60.0)      # the pause bridged
+    assert np.allclose(cal.lag_stream().gradient(t, x), expected)
+    corrector = Corrector(cal)
+    assert np.allclose([corrector.lag.update(a, b) for a, b in zip(t, x)], expected)
+    assert corrector.lag.restarts == 0
+
+
 @pytest.fixture(scope='module')
 def chamber():
     """Return a chamber cycle (cool, heat, cool) of one unit with 10 mg of hysteresis, 5 Hz."""

@@ -183,28 +183,30 @@ class Hysteresis:
         did not show it on). On a steady ramp at r °C/s the gradient is about tau r, so the
         offset is about k tau r: positive k reads higher while heating.
     :param effect: the library effect it was named as (``temperature_rate``, ...).
+    :param gap_s: a silence of the temperature longer than this restarts the lag, s.
     """
 
     tau_s: float
     offset_per_c: np.ndarray = field(default_factory=lambda: np.zeros(3))
     effect: str = 'temperature_rate'
+    gap_s: float = LAG_GAP_S
 
     def __post_init__(self):
         self.tau_s = None if self.tau_s is None else float(self.tau_s)
         self.offset_per_c = np.asarray(self.offset_per_c, float).reshape(3).copy()
 
-    def offset(self, time, temp, gap_s=LAG_GAP_S):
+    def offset(self, time, temp):
         """Return what the term adds to the readings, (N, 3) m/s², at ``temp`` and ``time``."""
-        return np.outer(self.gradient(time, temp, gap_s), self.offset_per_c)
+        return np.outer(self.gradient(time, temp), self.offset_per_c)
 
-    def gradient(self, time, temp, gap_s=LAG_GAP_S):
+    def gradient(self, time, temp):
         """Return θ - θ_lag (N,) °C; 0 where the temperature is unknown."""
         temp = np.asarray(temp, float)
         ok = np.isfinite(temp) & np.isfinite(time)
         out = np.zeros(len(temp))
         if ok.any():
             t, x = np.asarray(time, float)[ok], temp[ok]
-            out[ok] = x - lagged_temperature(t, x, self.tau_s, gap_s)
+            out[ok] = x - lagged_temperature(t, x, self.tau_s, self.gap_s)
         return out
 
     def per_rate_mg(self, gravity):
@@ -215,7 +217,7 @@ class Hysteresis:
         """Plain YAML-ready mapping."""
         return {'effect': self.effect, 'tau_s': self.tau_s,
                 'offset_per_c_m_s2': [float(v) for v in self.offset_per_c],
-                'gap_s': LAG_GAP_S,
+                'gap_s': self.gap_s,
                 'model': 'offset_i += offset_per_c_m_s2[i] (T - T_lag), tau_s dT_lag/dt = '
                          'T - T_lag (restarts when the temperature is silent for gap_s)'}
 
@@ -223,4 +225,4 @@ class Hysteresis:
     def from_dict(cls, d):
         """Inverse of :meth:`to_dict` (no validation: see dataio.calibration_file)."""
         return cls(float(d['tau_s']), np.asarray(d['offset_per_c_m_s2'], float),
-                   str(d.get('effect', 'temperature_rate')))
+                   str(d.get('effect', 'temperature_rate')), float(d.get('gap_s', LAG_GAP_S)))
