@@ -66,7 +66,7 @@ def stamp_seconds(stamp):
 
 class StreamTime:
     """
-    Times that only increase: a step back starts a new stretch :data:`RESTART_GAP_S` later.
+    Times that never go back: a step back starts a new stretch :data:`RESTART_GAP_S` later.
 
     ``steps`` counts the steps back; ``last`` is the newest time given, s.
     """
@@ -77,10 +77,15 @@ class StreamTime:
         self.steps = 0
 
     def __call__(self, t):
-        """Return the increasing time of a stamp ``t`` (s), in arrival order."""
+        """
+        Return the non-decreasing time of a stamp ``t`` (s), in arrival order.
+
+        A repeated stamp (a FIFO burst stamped once, a stepping ``/clock``) stays as it is:
+        the consumers take equal times, and a restart for each would leave no window.
+        """
         t += self.offset
         last = self.last
-        if last is not None and t <= last:
+        if last is not None and t < last:
             self.offset += last + RESTART_GAP_S - t
             t = last + RESTART_GAP_S
             self.steps += 1
