@@ -118,6 +118,8 @@ BLOCK_S = 0.1
 """Time each block summarises (at least; longer below 80 Hz), s."""
 HISTORY_NAME = 'history.sqlite'
 """The sensor history read beside the calibration file."""
+STAMP_STALL_S = 1.0
+"""Imu stamps that have not advanced for this long (wall clock, s) are said in the statuses."""
 
 
 def settings_from(params):
@@ -180,6 +182,7 @@ class NodeMonitor:
         self.bias = (0.0, 0.0, 0.0)     # residual gyro bias to subtract, rad/s
         self.history = 'none'           # what was read of the sensor's history
         self._t_last = None             # stamp of the newest sample handed over, s
+        self._stalled_since = None      # monotonic time since which the stamps stall
         self._fed = time.monotonic()    # when samples were last handed over (wall clock)
         self._problem = ''              # a failure of the monitor, said in /diagnostics
         self._published = None          # the HealthResult last sent on ~/health
@@ -245,6 +248,9 @@ class NodeMonitor:
         try:
             data = np.array(rows, float)
             t = data[:, 0]
+            if not self._advancing(t):
+                self._fed = time.monotonic()        # the messages come; their stamps do not
+                return
             m = mag_t = None
             if mag:
                 m = np.array(mag, float).reshape(-1, 3)
@@ -270,6 +276,21 @@ class NodeMonitor:
                 self.node.get_logger().error(f'field monitor: {err}; keeping the last gyro '
                                              'bias estimate')
             self._problem = f'field monitor failed on a block: {err}'
+
+    def _advancing(self, stamps):
+        """
+        Whether a block's stamps advance, within it or since the last block handed over.
+
+        Stamps that do not (unstamped messages, a frozen header) give the monitor no clock
+        to cut blocks or time still periods by: such rows are not handed over, and from
+        when the stall began the statuses say so (``STAMP_STALL_S`` later).
+        """
+        if stamps[-1] > stamps[0] or (self._t_last is not None and stamps[-1] > self._t_last):
+            self._stalled_since = None
+            return True
+        if self._stalled_since is None:
+            self._stalled_since = time.monotonic()
+        return False
 
     # -- the stationary input ------------------------------------------------------------
     def _subscribe_stationary(self):
@@ -362,11 +383,17 @@ class NodeMonitor:
 
     def _state(self, mon):
         """Return the monitor's state beside its last check (under the lock), JSON-ready."""
-        quiet = time.monotonic() - self._fed
+        now = time.monotonic()
+        quiet = now - self._fed
+        stalled = 0.0 if self._stalled_since is None else now - self._stalled_since
         idle = mon.idle_words()
         if self.active and quiet >= mon.settings.still_timeout_s:
             idle = (f'no imu/data_raw for {quiet:.0f} s: the gyro bias and the calibration '
                     'are not being checked')
+        elif self.active and stalled >= STAMP_STALL_S:
+            idle = (f'the imu/data_raw stamps have not advanced for {stalled:.0f} s '
+                    '(unstamped or frozen headers): the gyro bias and the calibration are '
+                    'not being checked')
         return {'sensor_fault': mon.fault, 'idle': idle,
                 'idle_s': round(mon.idle_s(), 1), 'too_slow': mon.too_slow,
                 'still_periods': mon.periods, 'still_time_s': round(mon.still_time_s, 1),

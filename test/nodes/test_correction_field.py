@@ -329,3 +329,24 @@ def test_a_stream_that_stops_is_a_warning_too(tmp_path, rig_factory):  # noqa: F
     rig.spin(1.2)
     status = _statuses(rig)['accel_correction: calibration health']
     assert status.level == DiagnosticStatus.WARN and 'no imu/data_raw for' in status.message
+
+
+def test_unstamped_messages_are_said_not_left_silently_unchecked(tmp_path, rig_factory):  # noqa
+    """Regression: zero stamps gave the monitor a clock that never moved: no block, no word."""
+    path = tmp_path / 'calibration.yaml'
+    save_calibration(identity_calibration(), path)
+    rig = rig_factory(path)
+    rng = np.random.default_rng(10)
+    messages = still_messages(rng, 250, 100.0)
+    for m in messages:
+        m.header.stamp.sec = m.header.stamp.nanosec = 0
+    stream(rig, messages)
+    statuses = _statuses(rig)
+    for part in ('gyro bias at rest', 'calibration health'):
+        status = statuses[f'accel_correction: {part}']
+        assert status.level == DiagnosticStatus.WARN, status.message
+        assert 'stamps have not advanced' in status.message
+    stream(rig, still_messages(rng, 150, 100.0))                # stamped again: checked
+    assert rig.node.monitor.monitor.blocks > 0
+    assert 'stamps have not advanced' not in \
+        _statuses(rig)['accel_correction: gyro bias at rest'].message
