@@ -27,7 +27,7 @@ import os
 
 import numpy as np
 
-from .common import add_data_args, ranged, time_unit, to_si, unit_options
+from .common import add_data_args, ranged, sensor_id, time_unit, to_si, unit_options
 
 
 def add_arguments(p):
@@ -51,7 +51,7 @@ def add_arguments(p):
     h.add_argument('--history', metavar='DB', default=None,
                    help='history database to read (default: history.sqlite beside the '
                         'calibration file, when there is one)')
-    h.add_argument('--sensor', default=None,
+    h.add_argument('--sensor', type=sensor_id, default=None,
                    help="sensor id in the history (default: the calibration's sensor_id)")
 
 
@@ -69,10 +69,10 @@ def run(args, out):
                                health_memory_s=math.inf, still_timeout_s=math.inf)
     mon = FieldMonitor(cal, settings, history)
     rows = 0
+    stream = cal.lag_stream()           # the heating/cooling term's lag, across pieces
     for samples in _pieces(args):
-        with np.errstate(all='ignore'):
-            a, g, m = corrected_arrays(cal, samples.accel, samples.gyro, samples.temp,
-                                       samples.mag)
+        a, g, m = corrected_arrays(cal, samples.accel, samples.gyro, samples.temp,
+                                   samples.mag, samples.t, stream)
         mon.feed(samples.t, a, g, samples.temp, m)
         rows += len(samples)
         if mon.too_slow:
@@ -86,7 +86,7 @@ def run(args, out):
     if final is None and fault is None:
         raise InputError(_no_rest(args, mon, rows))
     failures = h.failures
-    warning = h.first_warning if h.first_warning is not None else None
+    warning = h.first_warning
     status = 'error' if fault else 'recalibrate' if failures else \
         'warn' if warning is not None else 'ok'
     if fault:

@@ -181,6 +181,24 @@ def test_a_logger_s_averaged_output_at_one_hertz_and_slower(capsys, cycles, tmp_
     assert (code == 2 and 'not an IMU rate' in err) if every == 10 else code != 2
 
 
+def test_health_corrects_with_the_hysteresis_term_as_the_node_does(capsys, tmp_path):
+    """Regression: ``health`` left the heating/cooling term out: 'recalibrate' on a cycle."""
+    _write_cycle(tmp_path, 'fast', 10.0, 21, rate_hz=25.0)
+    cal = tmp_path / 'fast_cal.yaml'
+    verdicts = {}
+    for mode in ('auto', 'off'):
+        out = tmp_path / f'{mode}.yaml'
+        code, _, err = run(capsys, 'fit', tmp_path / 'fast.csv', '--thermal', '--calibration',
+                           cal, '--hysteresis', mode, '-o', out)
+        assert code == 0, err
+        code, text, err = run(capsys, 'health', out, tmp_path / 'fast.csv', '--json')
+        verdicts[mode] = (code, json.loads(text))
+    code, body = verdicts['auto']
+    assert code == 0 and body['status'] == 'ok' and body['checks'] >= 20
+    code, body = verdicts['off']                      # the term is what makes it fit
+    assert code == 1 and body['failed_checks'] > body['checks'] // 4
+
+
 def test_apply_says_when_the_data_leave_the_calibrated_range(capsys, cycles, tmp_path):
     folder, _ = cycles
     out_yaml = tmp_path / 'out.yaml'

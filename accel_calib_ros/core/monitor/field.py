@@ -385,17 +385,19 @@ class FieldMonitor:
                 'periods_turning_about_gravity': tr.turning}
 
 
-def corrected_arrays(cal, accel, gyro=None, temp=None, mag=None):
+def corrected_arrays(cal, accel, gyro=None, temp=None, mag=None, time=None, stream=None):
     """
-    Correct arrays as the correction node does (level trim included).
+    Correct arrays as the correction node does (level trim and hysteresis term included).
 
     :param cal: Calibration. :param accel: (N, 3) raw m/s². :param gyro: (N, 3) raw
         rad/s or None. :param temp: (N,) °C or None. :param mag: (N, 3) raw µT or None.
+    :param time: (N,) s, or None (no heating/cooling term). :param stream: the
+        calibration's ``lag_stream()`` carried from piece to piece of one recording.
     :return: (accel, gyro or None, mag or None), corrected, in the levelled frame.
     """
     L = np.asarray(cal.level_rotation(), float)
     with np.errstate(all='ignore'):
-        a = cal.correct(accel, temp) @ L.T
+        a = cal.correct(accel, temp, time, stream) @ L.T
         g = None if gyro is None else cal.correct_gyro(gyro, temp) @ L.T
         m = None if mag is None or cal.magnetometer is None else cal.correct_mag(mag) @ L.T
         if mag is not None and m is None:
