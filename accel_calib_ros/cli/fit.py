@@ -70,9 +70,10 @@ def add_arguments(p):
     add_window_args(p)
     g = p.add_argument_group('per-sensor history')
     g.add_argument('--history', nargs='?', const='', default=None, metavar='DB',
-                   help='fit on all windows of --sensor kept in this SQLite history (default '
-                        'next to the calibration file of the nodes); an accepted fit adds its '
-                        'windows and calibration as one session, a refused one adds nothing')
+                   help='fit on all windows of --sensor kept in this SQLite history (default: '
+                        "the one beside the nodes' calibration file of --sensor); an accepted "
+                        'fit adds its windows and calibration as one session, a refused one '
+                        'adds nothing')
     g.add_argument('--sensor', type=sensor_id,
                    help='sensor id in the history (firmware id, port or name; surrounding '
                         'spaces are dropped)')
@@ -109,7 +110,7 @@ def warn_imu(outcomes):
 
 def _history_path(args):
     from ..dataio.history import default_history_path
-    return args.history or default_history_path()
+    return args.history or default_history_path(args.sensor)
 
 
 def history_observations(args, samples, obs):

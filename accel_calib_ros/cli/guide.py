@@ -43,9 +43,9 @@ def add_arguments(p):
     src.add_argument('--simulate', action='store_true',
                      help='a simulated sensor held by a simulated person who follows the '
                           'advice')
-    p.add_argument('-o', '--output', help='calibration YAML to write (default: the file of '
-                                          'the nodes, $ROS_HOME/accel_calib_ros/'
-                                          'calibration.yaml)')
+    p.add_argument('-o', '--output', help="calibration YAML to write (default: the nodes' "
+                                          'file of --sensor, $ROS_HOME/accel_calib_ros/'
+                                          '<sensor>/calibration.yaml)')
     p.add_argument('--method', choices=GUIDED_METHODS, default=DEFAULT_SETTINGS.method)
     p.add_argument('--target', type=positive, default=DEFAULT_TARGET,
                    help='predicted accuracy that is enough, m/s² (default %(default)s)')
@@ -61,8 +61,9 @@ def add_arguments(p):
                    help='keep the windows and the calibration in this per-sensor history '
                         '(default next to the calibration file)')
     p.add_argument('--sensor', type=sensor_id,
-                   help='sensor id in the history (default: the port, the topic or '
-                        '"simulated-SEED")')
+                   help='sensor id, as the nodes name it (namespace/frame_id: robot1/imu_link; '
+                        'default imu_link, their default): recorded in the calibration and '
+                        'the history, and it picks their default files')
     p.add_argument('--timeout', type=positive, default=None,
                    help='give up after this many wall-clock seconds')
     from ..dataio.wire.chips import DEFAULT_CHIP
@@ -265,10 +266,18 @@ class _Keys:
             self.fd = None
 
 
-def run(args, out):
-    """Run ``accel-calib guide``; return the exit status."""
+def files(args):
+    """
+    Return (calibration file, history or None) of a guide run, checked.
+
+    By default the files the nodes read for ``--sensor`` (``imu_link``: their default),
+    ``$ROS_HOME/accel_calib_ros/<sensor>/``; with ``--history`` the sensor is recorded too.
+
+    :raises UsageError: an output would replace an input, a device or each other.
+    """
     from ..dataio.calibration_file import default_calibration_path
-    output = args.output or default_calibration_path()
+    from ..dataio.sensor_id import DEFAULT_SENSOR
+    output = args.output or default_calibration_path(args.sensor or DEFAULT_SENSOR)
     check_output(output, args.port, what='-o')
     check_output(args.record, args.port, what='--record')
     if args.record and not os.path.isdir(os.path.dirname(os.path.abspath(args.record))):
@@ -278,13 +287,18 @@ def run(args, out):
     history = None
     if args.history is not None:
         from ..dataio.history import default_history_path
-        history = args.history or default_history_path()
+        args.sensor = args.sensor or DEFAULT_SENSOR
+        history = args.history or default_history_path(args.sensor)
         check_output(history, args.port, what='--history')
         if any(same_file(history, f) for f in (output, args.record)):
             raise UsageError('accel-calib guide: the history must not be the output or '
                              'the record file')
-        args.sensor = args.sensor or sensor_id(args.port or args.topic
-                                               or f'simulated-{args.seed}')
+    return output, history
+
+
+def run(args, out):
+    """Run ``accel-calib guide``; return the exit status."""
+    output, history = files(args)
     try:
         from rich.console import Console
         from rich.live import Live

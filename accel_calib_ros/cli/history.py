@@ -22,8 +22,9 @@ def add_arguments(p):
                    help='list (default): calibrations and sessions per sensor; check: look '
                         'for damage; forget: remove --session of --sensor (or all of its '
                         'sessions)')
-    p.add_argument('--db', help='history database (default next to the calibration file of '
-                                'the nodes: $ROS_HOME/accel_calib_ros/history.sqlite)')
+    p.add_argument('--db', help="history database (default: the one beside the nodes' "
+                                'calibration file of --sensor, or of imu_link: '
+                                '$ROS_HOME/accel_calib_ros/<sensor>/history.sqlite)')
     p.add_argument('--sensor', type=sensor_id, help='only this sensor')
     p.add_argument('--session', help='forget: only this session (see the listing)')
     p.add_argument('--plot', metavar='FILE.png', help='plot parameter drift over time')
@@ -48,7 +49,8 @@ def run(args, out):
     """Run ``accel-calib history``; return the exit status."""
     from ..core.errors import InputError
     from ..dataio.history import default_history_path
-    path = args.db or default_history_path()
+    from ..dataio.sensor_id import DEFAULT_SENSOR
+    path = args.db or default_history_path(args.sensor or DEFAULT_SENSOR)
     if not os.path.exists(path):
         raise InputError(f'no history at {path} (fit --history or guide --history creates it)')
     if args.session is not None and args.action != 'forget':

@@ -21,6 +21,8 @@ from ..core.errors import InputError
 
 MAX_SENSOR_ID = 200
 """Longest sensor id accepted, characters."""
+DEFAULT_SENSOR = 'imu_link'
+"""The sensor the nodes serve by default (frame_id ``imu_link`` at the root namespace)."""
 
 
 def normalise_sensor_id(text):

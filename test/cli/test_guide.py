@@ -189,3 +189,18 @@ def test_the_guide_windows_carry_the_rate_and_the_fit_its_bias():
     outcome = guide.finish(DEFAULT_SETTINGS.replace(words=GUIDE))
     assert outcome.accepted, outcome.refusal
     np.testing.assert_allclose(outcome.calibration.gyro_bias, sensor.gyro_bias, atol=2e-3)
+
+
+def test_by_default_the_guide_writes_the_files_the_nodes_read(tmp_path, monkeypatch):
+    """Regression: it wrote $ROS_HOME/accel_calib_ros/calibration.yaml, which no node reads."""
+    from accel_calib_ros.cli import build_parser
+    from accel_calib_ros.cli.guide import files
+    monkeypatch.setenv('ROS_HOME', str(tmp_path))
+    home = tmp_path / 'accel_calib_ros'           # the nodes': <namespace>/<frame_id> folders
+    args = build_parser('guide').parse_args(['guide', '--simulate'])
+    assert files(args) == (str(home / 'imu_link' / 'calibration.yaml'), None)
+    args = build_parser('guide').parse_args(['guide', '--simulate', '--history', '--sensor',
+                                             'robot1/imu_link'])
+    folder = home / 'robot1' / 'imu_link'
+    assert files(args) == (str(folder / 'calibration.yaml'), str(folder / 'history.sqlite'))
+    assert args.sensor == 'robot1/imu_link'                 # recorded in the file as well
